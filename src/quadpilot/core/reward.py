@@ -1,0 +1,103 @@
+"""Reward and termination maths, pure and batched over a leading drone axis.
+
+Shapes follow seed 000: a large penalty on a crash (altitude < 0 or |roll|, |pitch| > 60°), a
+Gaussian reward on position error, a small penalty on angular rate. Circle adds seed 001's radius
+and tangential-speed errors. Every per-step reward is bounded: at most `RewardConfig.max_step`.
+
+Why Gaussian and not a linear distance penalty: with a linear penalty and an alive bonus, a drone
+far from the target earns less by staying alive than by crashing, and learns to crash on purpose;
+with a positive bounded reward every step alive is worth something.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    pos_coarse_weight: float = 0.5
+    """Weight of the wide Gaussian on position error; it pulls from up to a few metres away."""
+    pos_coarse_sigma: float = 0.5
+    """m, width of the wide Gaussian exp(−d²/σ²)."""
+    pos_fine_weight: float = 0.5
+    """Weight of the narrow Gaussian on position error; it pays for the last centimetres."""
+    pos_fine_sigma: float = 0.1
+    """m, width of the narrow Gaussian."""
+    rate_weight: float = 0.01
+    """Penalty per (rad/s)² of body rate, |ω|²."""
+    crash_penalty: float = 10.0
+    """Paid once on the step that ends in a crash or leaves the flight area."""
+    max_tilt_deg: float = 60.0
+    """deg, |roll| or |pitch| above this is a crash (seed 000)."""
+    max_distance: float = 5.0
+    """m, leaving this distance from the target ends the episode like a crash."""
+    radius_weight: float = 0.5
+    """Circle: weight of the Gaussian on radius error (seed 001's distance error)."""
+    radius_sigma: float = 0.1
+    """m, circle: width of the radius-error Gaussian."""
+    speed_weight: float = 0.5
+    """Circle: weight of the Gaussian on tangential-speed error (seed 001's velocity error)."""
+    speed_sigma: float = 0.2
+    """m/s, circle: width of the speed-error Gaussian."""
+
+    @property
+    def max_tilt(self) -> float:
+        """rad."""
+        return math.radians(self.max_tilt_deg)
+
+
+def gaussian(err_sq: np.ndarray, sigma: float) -> np.ndarray:
+    return np.exp(-err_sq / (sigma * sigma))
+
+
+def crashed(state: np.ndarray, pos_error: np.ndarray, cfg: RewardConfig) -> np.ndarray:
+    """(N,) bool: altitude below ground, tilt beyond the limit, or outside the flight area."""
+    dist_sq = np.einsum("ij,ij->i", pos_error, pos_error)
+    return (
+        (state[:, 2] < 0.0)
+        | (np.abs(state[:, 6]) > cfg.max_tilt)
+        | (np.abs(state[:, 7]) > cfg.max_tilt)
+        | ~(dist_sq <= cfg.max_distance**2)  # NaN counts as out
+    )
+
+
+def hover_reward(state: np.ndarray, pos_error: np.ndarray, crash: np.ndarray, cfg: RewardConfig) -> np.ndarray:
+    """(N,) reward for reaching and holding a point. state (N, 12), pos_error (N, 3), crash (N,)."""
+    d2 = np.einsum("ij,ij->i", pos_error, pos_error)
+    w2 = np.einsum("ij,ij->i", state[:, 9:12], state[:, 9:12])
+    r = (
+        cfg.pos_coarse_weight * gaussian(d2, cfg.pos_coarse_sigma)
+        + cfg.pos_fine_weight * gaussian(d2, cfg.pos_fine_sigma)
+        - cfg.rate_weight * w2
+    )
+    return np.where(crash, r - cfg.crash_penalty, r)
+
+
+def circle_errors(state: np.ndarray, center: np.ndarray, radius, speed) -> tuple[np.ndarray, np.ndarray]:
+    """Seed 001's circle errors: (radius error, tangential-speed error), each (N,).
+
+    radius error = ρ − R with ρ the horizontal distance to the centre; tangential speed is
+    (r × v)_z / ρ, positive counter-clockwise seen from above, so the error is that minus the
+    desired speed (seed 001 writes x·v_y − y·x_v − R·v, the same up to the factor ρ)."""
+    dx, dy = state[:, 0] - center[..., 0], state[:, 1] - center[..., 1]
+    rho = np.sqrt(dx * dx + dy * dy)
+    v_tan = (dx * state[:, 4] - dy * state[:, 3]) / np.maximum(rho, 1e-6)
+    return rho - radius, v_tan - speed
+
+
+def circle_reward(
+    state: np.ndarray, pos_error: np.ndarray, crash: np.ndarray, center, radius, speed, cfg: RewardConfig
+) -> np.ndarray:
+    """(N,) reward for following a circle: the hover reward towards the moving target point, plus
+    seed 001's radius and tangential-speed terms."""
+    e_r, e_v = circle_errors(state, center, radius, speed)
+    r = hover_reward(state, pos_error, crash, cfg)
+    return (
+        r
+        + cfg.radius_weight * gaussian(e_r * e_r, cfg.radius_sigma)
+        + cfg.speed_weight * gaussian(e_v * e_v, cfg.speed_sigma)
+    )

@@ -1,0 +1,1 @@
+"""Export (torch + onnx): deployable wrapper, ONNX export with metadata, parity checks."""

@@ -1,0 +1,5 @@
+from quadpilot._stub import not_yet
+
+
+def main(argv=None) -> int:
+    return not_yet("quad-sitl", "the SITL issue")

@@ -1,0 +1,1 @@
+"""The MAVLink contract: messages, fields, units, frames (NED/FRD on the wire), signing."""

@@ -1,0 +1,1 @@
+"""Torch-free runtime: policy backends, safety monitor, fallback controller, MAVLink node."""

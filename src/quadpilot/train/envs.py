@@ -1,0 +1,326 @@
+"""Gymnasium environments for hover, waypoint and circle tasks, single and batched.
+
+One engine, `QuadBatch`, owns N drones: sampling initial states, stepping the `core` dynamics,
+building observations with `core.build_observation`, and computing rewards and terminations with
+`core.reward`. `QuadEnv` is a `gymnasium.Env` over one drone; `QuadVectorEnv` is a
+`gymnasium.vector.VectorEnv` over N drones with masked same-step autoreset.
+
+Terminated (crash, leaving the flight area) and truncated (time limit) are kept apart everywhere.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+from quadpilot.core import dynamics
+from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT, ObsLayout, build_observation
+from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
+from quadpilot.core.reward import RewardConfig, circle_errors, circle_reward, crashed, hover_reward
+
+TASKS = ("hover", "waypoint", "circle")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything that defines an environment; every field is a `gymnasium.make` keyword."""
+
+    task: str = "hover"
+    """hover: reach and hold `home`; waypoint: start at `home`, reach a target drawn within
+    `target_radius` of it; circle: follow a point moving round a circle about `home`."""
+    vehicle: str | VehicleParams = "seed"
+    """Airframe: a preset name ("seed", "crazyflie") or a VehicleParams."""
+    home: tuple[float, float, float] = (0.0, 0.0, 2.0)
+    """m, world ENU: hover target, waypoint start, circle centre."""
+    max_episode_steps: int = 500
+    """Steps before truncation (500 × 0.01 s = 5 s, seed 000)."""
+    dt: float = dynamics.DT
+    """s, control period."""
+    substeps: int = 1
+    """Physics substeps per control step."""
+    init_pos_radius: float = 1.0
+    """m, start position uniform in a ball of this radius around the start point."""
+    init_vel: float = 0.5
+    """m/s, each start velocity component uniform in ±init_vel."""
+    init_tilt_deg: float = 20.0
+    """deg, start roll and pitch uniform in ±init_tilt_deg; yaw is uniform in [−180°, 180°)."""
+    init_rate: float = 0.0
+    """rad/s, each start body rate uniform in ±init_rate."""
+    target_radius: float = 0.5
+    """m, waypoint: target uniform in a ball of this radius around home (the curriculum stage)."""
+    circle_radius: float = 1.0
+    """m, circle radius (seed 001)."""
+    circle_speed: float = 1.0
+    """m/s, speed along the circle, counter-clockwise seen from above (seed 001)."""
+    success_tolerance: float = 0.05
+    """m, an episode succeeds if it ends uncrashed with mean position error over its last
+    `success_window` seconds at most this."""
+    success_window: float = 2.0
+    """s, see `success_tolerance`."""
+    dtype: str = "float32"
+    """Float type of the simulation state: float32 (fast) or float64."""
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    """Reward weights and termination limits."""
+
+    def __post_init__(self) -> None:
+        if self.task not in TASKS:
+            raise ValueError(f"unknown task {self.task!r}; expected one of {TASKS}")
+        if self.dtype not in ("float32", "float64"):
+            raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
+        if self.max_episode_steps < 1 or self.substeps < 1 or not self.dt > 0:
+            raise ValueError("max_episode_steps and substeps must be ≥ 1 and dt > 0")
+        if len(self.home) != 3:
+            raise ValueError(f"home must be (x, y, z) in metres, got {self.home!r}")
+
+    @property
+    def params(self) -> VehicleParams:
+        return get_preset(self.vehicle) if isinstance(self.vehicle, str) else self.vehicle
+
+    @property
+    def layout(self) -> ObsLayout:
+        return TRACK_LAYOUT if self.task == "circle" else HOVER_LAYOUT
+
+    @property
+    def success_steps(self) -> int:
+        """Number of final steps over which success is judged."""
+        return min(self.max_episode_steps, max(1, round(self.success_window / self.dt)))
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["vehicle"] = dataclasses.asdict(self.params)
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict) -> EnvConfig:
+        d = dict(d)
+        d["vehicle"] = VehicleParams(**d["vehicle"]) if isinstance(d["vehicle"], dict) else d["vehicle"]
+        d["reward"] = RewardConfig(**d.get("reward", {}))
+        d["home"] = tuple(d["home"])
+        return cls(**d)
+
+
+def make_config(task: str | None = None, **kwargs: Any) -> EnvConfig:
+    """An EnvConfig from keywords, with a clear message for an unknown one."""
+    names = {f.name for f in dataclasses.fields(EnvConfig)}
+    unknown = set(kwargs) - names
+    if unknown:
+        raise TypeError(f"unknown environment option(s) {sorted(unknown)}; known: {sorted(names)}")
+    if isinstance(kwargs.get("reward"), dict):
+        kwargs["reward"] = RewardConfig(**kwargs["reward"])
+    if task is not None:
+        kwargs["task"] = task
+    defaults = {"waypoint": {"home": (0.0, 0.0, 3.0), "init_pos_radius": 0.0}, "circle": {"init_pos_radius": 0.5}}
+    return EnvConfig(**{**defaults.get(kwargs.get("task", "hover"), {}), **kwargs})
+
+
+def sample_ball(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
+    """(n, 3) points uniform in a ball."""
+    v = rng.normal(size=(n, 3))
+    v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+    return v * (radius * rng.random((n, 1)) ** (1.0 / 3.0))
+
+
+class QuadBatch:
+    """N drones of one task: state, targets, episode bookkeeping. Pure NumPy, no Python loop
+    over drones. `reset(mask, rng)` re-samples the selected drones; `step(action)` advances all."""
+
+    def __init__(self, cfg: EnvConfig, n: int, params: ParamBatch | None = None) -> None:
+        self.cfg, self.n = cfg, n
+        self.dtype = np.dtype(cfg.dtype)
+        self.nominal = cfg.params
+        self.params = (params or ParamBatch.from_preset(self.nominal, n)).astype(self.dtype)
+        if self.params.n != n:
+            raise ValueError(f"params hold {self.params.n} drones, expected {n}")
+        self.u_hover = self.dtype.type(self.nominal.hover_command)
+        self.home = np.asarray(cfg.home, dtype=self.dtype)
+        self.target_radius = cfg.target_radius
+        self.state = np.zeros((n, dynamics.STATE_DIM), self.dtype)
+        self.rotor = np.full((n, 4), self.u_hover, self.dtype)
+        self.target = np.tile(self.home, (n, 1))
+        self.target_vel = np.zeros((n, 3), self.dtype)
+        self.phase = np.zeros(n)  # circle: angle of the target point at t = 0
+        self.steps = np.zeros(n, np.int64)
+        self.ep_return = np.zeros(n)
+        self.err_sum = np.zeros(n)  # position error summed over the success window
+        self.obs = np.zeros((n, cfg.layout.dim), np.float32)
+        self._omega = cfg.circle_speed / cfg.circle_radius
+
+    # --- targets -------------------------------------------------------------------------
+    def _circle_target(self, idx) -> tuple[np.ndarray, np.ndarray]:
+        c = self.cfg
+        ang = self.phase[idx] + self._omega * c.dt * self.steps[idx]
+        ca, sa = np.cos(ang), np.sin(ang)
+        pos = self.home + c.circle_radius * np.stack([ca, sa, np.zeros_like(ca)], axis=1)
+        vel = c.circle_speed * np.stack([-sa, ca, np.zeros_like(ca)], axis=1)
+        return pos.astype(self.dtype), vel.astype(self.dtype)
+
+    # --- API -----------------------------------------------------------------------------
+    def reset(self, mask: np.ndarray, rng: np.random.Generator) -> None:
+        idx = np.flatnonzero(mask)
+        k = idx.size
+        if k == 0:
+            return
+        c = self.cfg
+        tilt = math.radians(c.init_tilt_deg)
+        start = np.tile(self.home, (k, 1))
+        if c.task == "waypoint":
+            self.target[idx] = self.home + sample_ball(rng, k, self.target_radius)
+        elif c.task == "circle":
+            self.phase[idx] = rng.uniform(-np.pi, np.pi, k)
+            self.steps[idx] = 0
+            start, self.target_vel[idx] = self._circle_target(idx)
+            self.target[idx] = start
+        s = np.zeros((k, dynamics.STATE_DIM))
+        s[:, 0:3] = start + sample_ball(rng, k, c.init_pos_radius)
+        s[:, 3:6] = rng.uniform(-c.init_vel, c.init_vel, (k, 3))
+        s[:, 6:8] = rng.uniform(-tilt, tilt, (k, 2))
+        s[:, 8] = rng.uniform(-np.pi, np.pi, k)
+        s[:, 9:12] = rng.uniform(-c.init_rate, c.init_rate, (k, 3)) if c.init_rate > 0 else 0.0
+        self.state[idx] = s
+        self.rotor[idx] = self.u_hover
+        self.steps[idx] = 0
+        self.ep_return[idx] = 0.0
+        self.err_sum[idx] = 0.0
+        self.obs[idx] = build_observation(
+            self.state[idx], self.target[idx], self.target_vel[idx] if c.task == "circle" else None
+        )
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Advance all drones one control step. action (N, 4) in [−1, 1].
+        Returns (obs, reward, terminated, truncated, pos_error_norm), obs written into self.obs."""
+        c = self.cfg
+        command = dynamics.action_to_command(np.asarray(action, dtype=self.dtype), self.u_hover)
+        self.state, self.rotor = dynamics.step(self.state, self.rotor, command, self.params, c.dt, c.substeps)
+        self.steps += 1
+        circle = c.task == "circle"
+        if circle:
+            self.target, self.target_vel = self._circle_target(slice(None))
+        build_observation(self.state, self.target, self.target_vel if circle else None, out=self.obs)
+        pos_err = self.obs[:, 0:3]
+        crash = crashed(self.state, pos_err, c.reward)
+        if circle:
+            reward = circle_reward(self.state, pos_err, crash, self.home, c.circle_radius, c.circle_speed, c.reward)
+        else:
+            reward = hover_reward(self.state, pos_err, crash, c.reward)
+        err = np.sqrt(np.einsum("ij,ij->i", pos_err, pos_err))
+        self.ep_return += reward
+        window = self.steps > c.max_episode_steps - c.success_steps
+        self.err_sum += np.where(window, err, 0.0)
+        truncated = (self.steps >= c.max_episode_steps) & ~crash
+        return self.obs, reward, crash, truncated, err
+
+    def success(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
+        """(N,) bool: ended by the time limit with mean error over the window within tolerance."""
+        mean_err = self.err_sum / self.cfg.success_steps
+        return truncated & ~terminated & (mean_err <= self.cfg.success_tolerance)
+
+    def circle_metrics(self) -> tuple[np.ndarray, np.ndarray]:
+        """(radius error, tangential-speed error), each (N,), for the circle task."""
+        return circle_errors(self.state, self.home, self.cfg.circle_radius, self.cfg.circle_speed)
+
+
+def _spaces(cfg: EnvConfig) -> tuple[gym.spaces.Box, gym.spaces.Box]:
+    obs = gym.spaces.Box(-np.inf, np.inf, (cfg.layout.dim,), np.float32)
+    act = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
+    return obs, act
+
+
+class QuadEnv(gym.Env):
+    """One quadrotor. Observation: `cfg.layout` (18 floats; 21 for circle). Action: four rotor
+    commands in [−1, 1], thrust relative to hover trim (−1 none, 0 hover, +1 twice hover)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, task: str | None = None, **kwargs: Any) -> None:
+        self.cfg = kwargs.pop("config", None) or make_config(task, **kwargs)
+        self.observation_space, self.action_space = _spaces(self.cfg)
+        self.batch = QuadBatch(self.cfg, 1)
+        self._started = False
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.batch.reset(np.ones(1, bool), self.np_random)
+        self._started = True
+        return self.batch.obs[0].copy(), self._info(float(np.linalg.norm(self.batch.obs[0, 0:3])))
+
+    def step(self, action):
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        a = np.asarray(action, dtype=np.float32).reshape(1, 4)
+        obs, reward, term, trunc, err = self.batch.step(a)
+        t, tr = bool(term[0]), bool(trunc[0])
+        info = self._info(float(err[0]))
+        if t or tr:
+            self._started = False
+            info["success"] = bool(self.batch.success(term, trunc)[0])
+        return obs[0].copy(), float(reward[0]), t, tr, info
+
+    def _info(self, err: float) -> dict:
+        info = {"pos_error": err, "steps": int(self.batch.steps[0])}
+        if self.cfg.task == "circle":
+            e_r, e_v = self.batch.circle_metrics()
+            info.update(radius_error=float(e_r[0]), speed_error=float(e_v[0]))
+        return info
+
+
+class QuadVectorEnv(VectorEnv):
+    """N quadrotors stepped by one NumPy call per step, with masked same-step autoreset.
+
+    When drone i's episode ends, `step` returns its reset observation and puts its last
+    observation in `infos["final_obs"][i]` (a dense float array here; `infos["_final_obs"]` is
+    the mask), as Gymnasium's SAME_STEP autoreset mode specifies. Ended episodes also report
+    `infos["episode"]` = {"r": return, "l": length, "success": bool} under `infos["_episode"]`.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int, task: str | None = None, params: ParamBatch | None = None, **kwargs):
+        self.cfg = kwargs.pop("config", None) or make_config(task, **kwargs)
+        self.num_envs = int(num_envs)
+        if self.num_envs < 1:
+            raise ValueError(f"num_envs must be ≥ 1, got {num_envs}")
+        self.single_observation_space, self.single_action_space = _spaces(self.cfg)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
+        self.batch = QuadBatch(self.cfg, self.num_envs, params)
+        self._rng = np.random.default_rng()
+        self._started = False
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+            self.action_space.seed(seed)
+        self.batch.reset(np.ones(self.num_envs, bool), self._rng)
+        self._started = True
+        return self.batch.obs.copy(), {}
+
+    def set_target_radius(self, radius: float) -> None:
+        """Waypoint curriculum: targets drawn from now on lie within `radius` of home."""
+        self.batch.target_radius = float(radius)
+
+    def step(self, actions):
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        actions = np.asarray(actions)
+        if actions.shape != (self.num_envs, 4):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 4), got {actions.shape}")
+        obs, reward, term, trunc, _ = self.batch.step(actions)
+        done = term | trunc
+        infos: dict[str, Any] = {}
+        if done.any():
+            infos["final_obs"] = obs.copy()
+            infos["_final_obs"] = done
+            infos["episode"] = {
+                "r": self.batch.ep_return.copy(),
+                "l": self.batch.steps.copy(),
+                "success": self.batch.success(term, trunc),
+            }
+            infos["_episode"] = done
+            self.batch.reset(done, self._rng)
+        return self.batch.obs.copy(), reward.astype(np.float32), term, trunc, infos

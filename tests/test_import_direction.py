@@ -1,0 +1,28 @@
+"""DESIGN.md's import direction: runtime and firmware_sim never pull in torch, gymnasium or the
+training side; `import quadpilot` alone stays light."""
+
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("torch", "gymnasium", "stable_baselines3", "quadpilot.train", "quadpilot.export")
+
+
+@pytest.mark.parametrize(
+    "module", ["quadpilot", "quadpilot.core", "quadpilot.link", "quadpilot.runtime", "quadpilot.firmware_sim"]
+)
+def test_light_packages_do_not_import_heavy_ones(module):
+    code = f"import sys, {module}; print(sorted(m for m in {HEAVY!r} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", f"{module} imported {out.stdout.strip()}"
+
+
+def test_core_imports_nothing_of_ours():
+    import pathlib
+
+    core = pathlib.Path(__file__).parents[1] / "src" / "quadpilot" / "core"
+    for path in core.glob("*.py"):
+        text = path.read_text()
+        for other in ("train", "export", "link", "runtime", "firmware_sim"):
+            assert f"quadpilot.{other}" not in text, f"{path.name} imports quadpilot.{other}"
