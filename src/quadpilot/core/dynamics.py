@@ -119,9 +119,10 @@ class _Derived:
         self.lag = bool(np.any(p.motor_tau > 0))
         if self.lag:
             tau = np.asarray(p.motor_tau, dtype=np.float64)
-            # exact discretisation of dω/dt = (ω_cmd − ω)/τ over h; τ = 0 follows the command
-            with np.errstate(divide="ignore"):
-                self.alpha = c(np.where(tau > 0, -np.expm1(-h / np.where(tau > 0, tau, 1.0)), 1.0))
+            # exact discretisation of dω/dt = (ω_cmd − ω)/τ over h: ω ← ω_cmd + e^(−h/τ)·(ω − ω_cmd).
+            # τ = 0 gives a decay of exactly 0, so ω = ω_cmd bit for bit, as for a lag-free batch
+            # (the form ω + (1 − e^(−h/τ))·(ω_cmd − ω) rounds to one ulp away from ω_cmd).
+            self.decay = c(np.where(tau > 0, np.exp(-h / np.where(tau > 0, tau, 1.0)), 0.0))
         self.drag = bool(np.any(p.drag > 0))
         if self.drag:
             self.drag_over_m = c(p.drag / p.mass)
@@ -130,7 +131,7 @@ class _Derived:
 def _substep(s, w, u, d: _Derived, h: float):
     x, y, z, vx, vy, vz, phi, th, psi, p, q, r = s
     if d.lag:
-        w = [wi + d.alpha * (ui - wi) for wi, ui in zip(w, u, strict=True)]
+        w = [ui + d.decay * (wi - ui) for wi, ui in zip(w, u, strict=True)]
     else:
         w = list(u)
     f0, f1, f2, f3 = (d.f_max * wi * wi for wi in w)  # F = k_f·ω², N

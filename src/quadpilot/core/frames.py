@@ -53,3 +53,13 @@ def quaternion_to_euler(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
     yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return roll, pitch, yaw
+
+
+def world_to_body(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rᵀ·v for rotation matrices (N, 3, 3) and world vectors (N, 3): the vectors in the body frame."""
+    return np.einsum("nji,nj->ni", rot, v)
+
+
+def body_to_world(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R·v for rotation matrices (N, 3, 3) and body vectors (N, 3)."""
+    return np.einsum("nij,nj->ni", rot, v)

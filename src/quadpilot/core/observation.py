@@ -7,7 +7,10 @@ Why not the raw 12 states: absolute position would tie a policy to the place it 
 (hovering at (0, 0, 10) would be out of distribution for a policy trained at (0, 0, 2)), so
 position enters as the error to the target, which is the position up to the known target. Raw yaw
 jumps at ±π once yaw is uniform; the attitude enters as the rotation matrix, which is continuous
-and gives roll and pitch without ambiguity.
+and gives roll and pitch without ambiguity. Position error, velocity and target velocity are
+expressed in the body frame (Rᵀ·v): with yaw uniform, a world-frame error forces the network to
+learn the rotation into the body frame itself (a product of inputs, slow for a small MLP);
+measured on hover, the body-frame layout learned markedly faster.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .dynamics import STATE_DIM
-from .frames import euler_to_rotmat
+from .frames import euler_to_rotmat, world_to_body
 
 
 @dataclass(frozen=True)
@@ -50,15 +53,15 @@ class ObsLayout:
 
 
 _BASE = (
-    ObsField("pos_error", 3, "m", "position minus target position, world ENU"),
-    ObsField("vel", 3, "m/s", "velocity, world ENU"),
+    ObsField("pos_error", 3, "m", "position minus target position, body FLU: Rᵀ·(p − p_target)"),
+    ObsField("vel", 3, "m/s", "velocity, body FLU: Rᵀ·v"),
     ObsField("rot", 9, "1", "rotation matrix body FLU → world ENU, row-major (R11, R12, …, R33)"),
     ObsField("rates", 3, "rad/s", "body rates p, q, r, FLU"),
 )
 HOVER_LAYOUT = ObsLayout("quadpilot.obs.hover/1", _BASE)
 TRACK_LAYOUT = ObsLayout(
     "quadpilot.obs.track/1",
-    (*_BASE, ObsField("target_vel", 3, "m/s", "velocity of the moving target, world ENU")),
+    (*_BASE, ObsField("target_vel", 3, "m/s", "velocity of the moving target, body FLU: Rᵀ·v_target")),
 )
 LAYOUTS: dict[str, ObsLayout] = {layout.name: layout for layout in (HOVER_LAYOUT, TRACK_LAYOUT)}
 
@@ -87,10 +90,11 @@ def build_observation(
         out = np.empty((n, layout.dim), dtype=np.float32)
     elif out.shape != (n, layout.dim):
         raise ValueError(f"out must have shape ({n}, {layout.dim}), got {out.shape}")
-    out[:, 0:3] = state[:, 0:3] - target_pos
-    out[:, 3:6] = state[:, 3:6]
-    out[:, 6:15] = euler_to_rotmat(state[:, 6], state[:, 7], state[:, 8]).reshape(n, 9)
+    rot = euler_to_rotmat(state[:, 6], state[:, 7], state[:, 8])
+    out[:, 0:3] = world_to_body(rot, state[:, 0:3] - target_pos)
+    out[:, 3:6] = world_to_body(rot, state[:, 3:6])
+    out[:, 6:15] = rot.reshape(n, 9)
     out[:, 15:18] = state[:, 9:12]
     if target_vel is not None:
-        out[:, 18:21] = target_vel
+        out[:, 18:21] = world_to_body(rot, np.broadcast_to(target_vel, (n, 3)))
     return out

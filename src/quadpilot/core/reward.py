@@ -6,7 +6,8 @@ and tangential-speed errors. Every per-step reward is bounded: at most `RewardCo
 
 Why Gaussian and not a linear distance penalty: with a linear penalty and an alive bonus, a drone
 far from the target earns less by staying alive than by crashing, and learns to crash on purpose;
-with a positive bounded reward every step alive is worth something.
+with a positive bounded reward every step alive is worth something. Measured on hover: adding
+velocity and tilt penalties on top slowed learning (error 0.20 m against 0.08 m at 1.2 M steps).
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ import numpy as np
 class RewardConfig:
     pos_coarse_weight: float = 0.5
     """Weight of the wide Gaussian on position error; it pulls from up to a few metres away."""
-    pos_coarse_sigma: float = 0.5
-    """m, width of the wide Gaussian exp(−d²/σ²)."""
+    pos_coarse_sigma: float = 1.0
+    """m, width of the wide Gaussian exp(−d²/σ²). Measured on hover: σ = 0.5 m gave almost no
+    signal from 1 m starts and drones drifted out of the flight area."""
     pos_fine_weight: float = 0.5
     """Weight of the narrow Gaussian on position error; it pays for the last centimetres."""
     pos_fine_sigma: float = 0.1

@@ -38,7 +38,7 @@ class EnvConfig:
     """Airframe: a preset name ("seed", "crazyflie") or a VehicleParams."""
     home: tuple[float, float, float] = (0.0, 0.0, 2.0)
     """m, world ENU: hover target, waypoint start, circle centre."""
-    max_episode_steps: int = 500
+    episode_steps: int = 500
     """Steps before truncation (500 × 0.01 s = 5 s, seed 000)."""
     dt: float = dynamics.DT
     """s, control period."""
@@ -73,8 +73,8 @@ class EnvConfig:
             raise ValueError(f"unknown task {self.task!r}; expected one of {TASKS}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
-        if self.max_episode_steps < 1 or self.substeps < 1 or not self.dt > 0:
-            raise ValueError("max_episode_steps and substeps must be ≥ 1 and dt > 0")
+        if self.episode_steps < 1 or self.substeps < 1 or not self.dt > 0:
+            raise ValueError("episode_steps and substeps must be ≥ 1 and dt > 0")
         if len(self.home) != 3:
             raise ValueError(f"home must be (x, y, z) in metres, got {self.home!r}")
 
@@ -89,7 +89,7 @@ class EnvConfig:
     @property
     def success_steps(self) -> int:
         """Number of final steps over which success is judged."""
-        return min(self.max_episode_steps, max(1, round(self.success_window / self.dt)))
+        return min(self.episode_steps, max(1, round(self.success_window / self.dt)))
 
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
@@ -202,7 +202,7 @@ class QuadBatch:
         if circle:
             self.target, self.target_vel = self._circle_target(slice(None))
         build_observation(self.state, self.target, self.target_vel if circle else None, out=self.obs)
-        pos_err = self.obs[:, 0:3]
+        pos_err = self.state[:, 0:3] - self.target  # world frame, m
         crash = crashed(self.state, pos_err, c.reward)
         if circle:
             reward = circle_reward(self.state, pos_err, crash, self.home, c.circle_radius, c.circle_speed, c.reward)
@@ -210,9 +210,9 @@ class QuadBatch:
             reward = hover_reward(self.state, pos_err, crash, c.reward)
         err = np.sqrt(np.einsum("ij,ij->i", pos_err, pos_err))
         self.ep_return += reward
-        window = self.steps > c.max_episode_steps - c.success_steps
+        window = self.steps > c.episode_steps - c.success_steps
         self.err_sum += np.where(window, err, 0.0)
-        truncated = (self.steps >= c.max_episode_steps) & ~crash
+        truncated = (self.steps >= c.episode_steps) & ~crash
         return self.obs, reward, crash, truncated, err
 
     def success(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
