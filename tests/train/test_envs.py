@@ -19,7 +19,7 @@ from quadpilot.train.envs import QuadBatch, QuadEnv, QuadVectorEnv, make_config
 IDS = {task: f"quadpilot.train:quadpilot/{task.capitalize()}-v0" for task in ("hover", "waypoint", "circle")}
 TASKS = list(IDS)
 CRASH_PENALTY = RewardConfig().crash_penalty
-MAX_STEP_REWARD = 1.0  # hover: two Gaussians of weight 0.5 each, minus a rate penalty
+MAX_STEP_REWARD = 1.5  # hover: Gaussians of weight 0.5 (σ 1 m) and 1.0 (σ 0.1 m), minus a rate penalty
 STILL = {"init_pos_radius": 0.0, "init_vel": 0.0, "init_tilt_deg": 0.0}  # start exactly at the start point
 
 

@@ -25,8 +25,9 @@ class RewardConfig:
     pos_coarse_sigma: float = 1.0
     """m, width of the wide Gaussian exp(−d²/σ²). Measured on hover: σ = 0.5 m gave almost no
     signal from 1 m starts and drones drifted out of the flight area."""
-    pos_fine_weight: float = 0.5
-    """Weight of the narrow Gaussian on position error; it pays for the last centimetres."""
+    pos_fine_weight: float = 1.0
+    """Weight of the narrow Gaussian on position error; it pays for the last centimetres. Measured
+    on hover: weight 1.0 ended at 1.5 cm mean error where 0.5 ended at 3.5 cm (one seed, 1 M steps)."""
     pos_fine_sigma: float = 0.1
     """m, width of the narrow Gaussian."""
     rate_weight: float = 0.01

@@ -1,5 +1,550 @@
-from quadpilot._stub import not_yet
+"""quad-train: train a quadrotor policy with PPO, with checkpoints that survive Ctrl-C and kill -9.
+
+Writes into the run directory (default runs/<task>-seed<S>):
+  config.json         PPO, environment and curriculum configuration, preset, command line(s)
+  metrics.csv         one row per PPO update (fixed header), flushed as each update ends
+  checkpoint.pt       latest resumable state (checkpoint.prev.pt: the one before it)
+  policy.pt           final deployable checkpoint (what quad-export reads)
+  eval.json           deterministic evaluation of the final policy
+  curves.png          episode return, length, success rate (and curriculum stage) against steps
+
+Resume an interrupted or finished run with the same command plus --resume; a larger --total-steps
+extends a finished run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import itertools
+import math
+import shlex
+import signal
+import sys
+import textwrap
+import threading
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+SIGNALS = ("SIGINT", "SIGTERM")
+RUN_FILES = (
+    "config.json",
+    "metrics.csv",
+    "checkpoint.pt",
+    "checkpoint.prev.pt",
+    "policy.pt",
+    "eval.json",
+    "curves.png",
+)
 
 
-def main(argv=None) -> int:
-    return not_yet("quad-train", "the PPO issue")
+class UsageError(Exception):
+    """A bad flag or a run directory that does not fit the request: exit code 2, one line."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line on stderr instead of usage + message
+        raise UsageError(message)
+
+
+def field_docs(cls) -> dict[str, str]:
+    """The docstring under each field of a dataclass (DESIGN style 1: it becomes --help)."""
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    except (OSError, TypeError):
+        return {}
+    body = tree.body[0].body
+    docs = {}
+    for a, b in itertools.pairwise(body):
+        if (
+            isinstance(a, ast.AnnAssign)
+            and isinstance(a.target, ast.Name)
+            and isinstance(b, ast.Expr)
+            and isinstance(b.value, ast.Constant)
+            and isinstance(b.value.value, str)
+        ):
+            docs[a.target.id] = " ".join(b.value.value.split())
+    return docs
+
+
+def _int_at_least(lo: int):
+    def parse(s: str) -> int:
+        try:
+            v = int(s.replace("_", ""))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {s!r}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"must be ≥ {lo}, got {v}")
+        return v
+
+    parse.__name__ = f"integer ≥ {lo}"
+    return parse
+
+
+# PPOConfig fields that have a command-line option; given explicitly, they override the preset.
+PPO_OPTIONS = {
+    "total_steps": ("N", 1),
+    "num_envs": ("K", 1),
+    "seed": ("S", 0),
+    "rollout_steps": ("T", 1),
+    "minibatch_size": ("M", 1),
+    "threads": ("N", 1),
+}
+# Options a resumed run may change; everything else must match the checkpoint.
+RESUME_MAY_CHANGE = ("total_steps", "threads")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from quadpilot.core.params import PRESETS as VEHICLES
+
+    from .envs import TASKS
+    from .ppo import PRESETS, PPOConfig
+
+    docs = field_docs(PPOConfig)
+    defaults = PPOConfig()
+    p = _Parser(
+        prog="quad-train",
+        description=__doc__.split("\n\n")[0],
+        epilog="\n\n".join(__doc__.split("\n\n")[1:]),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        allow_abbrev=False,
+    )
+    p.add_argument(
+        "--task", required=True, choices=TASKS, help="What to learn: hover, waypoint (with curriculum), circle."
+    )
+    for name, (metavar, lo) in PPO_OPTIONS.items():
+        doc = docs.get(name, "").replace("%", "%%")
+        p.add_argument(
+            "--" + name.replace("_", "-"),
+            type=_int_at_least(lo),
+            metavar=metavar,
+            help=f"{doc} Default: the preset's, else {getattr(defaults, name)}.",
+        )
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        help="PPO hyper-parameter preset: fast (batched PPO tuned here) or seed001 (seed 001's recipe). "
+        "Options given explicitly override it. Default: fast.",
+    )
+    p.add_argument("--vehicle", choices=sorted(VEHICLES), help="Airframe preset. Default: seed.")
+    p.add_argument("--out", metavar="DIR", help="Run directory. Default: runs/<task>-seed<S>.")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="Continue the run in DIR from checkpoint.pt (or checkpoint.prev.pt if that is unreadable). "
+        "Only --total-steps and --threads may differ from the original run.",
+    )
+    p.add_argument(
+        "--eval-episodes",
+        type=_int_at_least(0),
+        default=100,
+        metavar="N",
+        help="Deterministic evaluation episodes of the final policy written to eval.json (0: skip). Default: 100.",
+    )
+    p.add_argument(
+        "--eval-every",
+        type=_int_at_least(0),
+        default=10,
+        metavar="N",
+        help="Also evaluate the deterministic policy every N updates (--eval-episodes episodes, 100 if that is 0; "
+        "logged as eval_success_rate in metrics.csv; its time is not counted as training time) and record in "
+        "eval.json the steps and training seconds at which success first reached 95 %%. 0: never. Default: 10.",
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=_int_at_least(1),
+        default=1,
+        metavar="N",
+        help="Save checkpoint.pt every N updates (and always at the end and on Ctrl-C); a kill loses at most "
+        "N updates. Default: 1 (a save costs milliseconds).",
+    )
+    return p
+
+
+# --- progress -------------------------------------------------------------------------------
+
+
+def _info(m: dict) -> str:
+    ret, succ = m["ep_return"], m["success_rate"]
+    ret_s = f"{ret:.1f}" if math.isfinite(ret) else "–"  # no episode ended in this update
+    succ_s = f"{succ:.0%}" if math.isfinite(succ) else "–"
+    s = f"{m['steps_per_s']:,.0f} steps/s · return {ret_s} · success {succ_s}"
+    if m.get("curriculum_stage") is not None:
+        s += f" · stage {m['curriculum_stage']} ({m['target_radius']:g} m)"
+    return s
+
+
+class _Progress:
+    """A rich progress bar on a terminal; a plain line every ~10 % otherwise (CI logs)."""
+
+    def __init__(self, label: str, start: int, total: int) -> None:
+        from rich.console import Console
+
+        self.label, self.total = label, total
+        console = Console()
+        self.fancy = console.is_terminal
+        self.next_mark = math.floor(10 * start / total + 1e-9) / 10 + 0.1 if total else 1.0
+        if self.fancy:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+            from rich.table import Column
+
+            self.bar = Progress(
+                TextColumn("[bold]{task.description}"),
+                BarColumn(bar_width=24),
+                # on a narrow terminal the counters keep their width and the metrics get cut
+                MofNCompleteColumn(table_column=Column(min_width=2 * len(f"{total}") + 1)),
+                TimeRemainingColumn(table_column=Column(min_width=7)),
+                TextColumn("{task.fields[info]}", table_column=Column(no_wrap=True, overflow="ellipsis")),
+                console=console,
+            )
+            self.task = self.bar.add_task(label.removeprefix("quad-train "), total=total, completed=start, info="")
+            self.bar.start()
+        else:
+            print(f"{label}: {start:,}/{total:,} steps", flush=True)
+
+    def update(self, m: dict) -> None:
+        step = int(m["global_step"])
+        if self.fancy:
+            self.bar.update(self.task, completed=step, info=_info(m))
+            return
+        frac = step / self.total if self.total else 1.0
+        if frac + 1e-9 >= self.next_mark or step >= self.total:
+            print(
+                f"{self.label}: {step:,}/{self.total:,} steps ({frac:.0%}), update {m['update']} · {_info(m)}",
+                flush=True,
+            )
+            self.next_mark = math.floor(10 * frac + 1e-9) / 10 + 0.1
+
+    def close(self) -> None:
+        if self.fancy:
+            self.bar.stop()
+            self.fancy = False
+
+
+class _Stop:
+    """First SIGINT/SIGTERM: finish the update, save, exit. Second: abort at once."""
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+        self._old: dict = {}
+
+    def __call__(self, signum, frame) -> None:
+        if self.signal is not None:
+            raise KeyboardInterrupt
+        self.signal = signal.Signals(signum).name
+
+    def __enter__(self) -> _Stop:
+        if threading.current_thread() is threading.main_thread():
+            for name in SIGNALS:
+                sig = getattr(signal, name, None)
+                if sig is not None:
+                    self._old[sig] = signal.signal(sig, self)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+# --- the run --------------------------------------------------------------------------------
+
+
+def _clean_stale_temps(out: Path) -> None:
+    """Temporary files of a write that a kill interrupted (see checkpoint.atomic_write)."""
+    for f in out.glob(".*.tmp"):
+        if any(f.name.startswith(f".{name}.") for name in RUN_FILES):
+            f.unlink(missing_ok=True)
+
+
+def _command(argv: list[str]) -> str:
+    return shlex.join(["quad-train", *argv])
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
+    from .curriculum import CurriculumConfig, WaypointCurriculum
+    from .envs import make_config
+    from .ppo import PPO, PRESETS, PPOConfig
+    from .runlog import MetricsLog, write_json
+
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise UsageError(f"{out} exists and is not empty; add --resume to continue that run or choose another --out")
+    preset = args.preset or "fast"
+    cfg = PPOConfig(**{**PRESETS[preset], **explicit})
+    env_kw = {"vehicle": args.vehicle} if args.vehicle else {}
+    cur_cfg = CurriculumConfig() if args.task == "waypoint" else None
+    if cur_cfg is not None:
+        env_kw["target_radius"] = cur_cfg.radii[0]
+    env_cfg = make_config(args.task, **env_kw)
+    ppo = PPO(cfg, env_cfg)  # before any file is written: a failure here leaves no half-made run
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(
+        out / "config.json",
+        {
+            "schema": "quadpilot.run/1",
+            "task": args.task,
+            "preset": preset,
+            "ppo": cfg.to_json(),
+            "env": env_cfg.to_json(),
+            "curriculum": cur_cfg.to_json() if cur_cfg else None,
+            "checkpoint_every": args.checkpoint_every,
+            "eval_episodes": args.eval_episodes,
+            "command": _command(argv),
+            "started": _now(),
+            "resumes": [],
+        },
+    )
+    MetricsLog(out / "metrics.csv").close()  # the header, so the file exists from the start
+    cur = WaypointCurriculum(cur_cfg, cfg.num_envs, cfg.rollout_steps, env_cfg.episode_steps) if cur_cfg else None
+    return ppo, cur, preset, 0.0
+
+
+def _resume(args, explicit: dict, out: Path, argv: list[str]):
+    import json
+
+    from .checkpoint import CheckpointError, has_checkpoint, load_for_resume, ppo_from_checkpoint
+    from .curriculum import CurriculumConfig, WaypointCurriculum
+    from .ppo import PPOConfig
+    from .runlog import truncate_metrics, write_json
+
+    if not has_checkpoint(out):
+        if out.is_dir() and any(out.iterdir()):  # e.g. killed before its first update ended
+            raise UsageError(f"--resume: {out} holds no checkpoint.pt; remove it or pick another --out to start afresh")
+        raise UsageError(f"--resume: no checkpoint.pt in {out}; start the run without --resume")
+    try:
+        ckpt, used, warning = load_for_resume(out)
+    except CheckpointError as e:
+        raise UsageError(str(e)) from None
+    if warning:
+        print(f"quad-train: warning: {warning}", file=sys.stderr)
+    stored = PPOConfig.from_json(ckpt["ppo_config"])
+    extra = ckpt["extra"]
+    task = ckpt["env_config"]["task"]
+    if args.task != task:
+        raise UsageError(f"{out} holds a {task} run; --task {args.task} does not match it")
+    clashes = [
+        f"--{k.replace('_', '-')} {v} (checkpoint: {getattr(stored, k)})"
+        for k, v in explicit.items()
+        if k not in RESUME_MAY_CHANGE and v != getattr(stored, k)
+    ]
+    if args.preset and args.preset != extra.get("preset"):
+        clashes.append(f"--preset {args.preset} (checkpoint: {extra.get('preset')})")
+    if args.vehicle and args.vehicle != ckpt["env_config"]["vehicle"]["name"]:
+        clashes.append(f"--vehicle {args.vehicle} (checkpoint: {ckpt['env_config']['vehicle']['name']})")
+    if clashes:
+        raise UsageError(
+            f"a resumed run keeps its configuration; only --total-steps and --threads may change: {', '.join(clashes)}"
+        )
+    cfg = dataclasses.replace(stored, **{k: v for k, v in explicit.items() if k in RESUME_MAY_CHANGE})
+    if cfg.lr_schedule != "constant" and cfg.total_steps != stored.total_steps:
+        print(
+            f"quad-train: note: the {cfg.lr_schedule} learning-rate schedule runs over total_steps; from here on it "
+            f"follows the new {cfg.total_steps:,} instead of {stored.total_steps:,}",
+            file=sys.stderr,
+        )
+    try:
+        ppo = ppo_from_checkpoint(ckpt, cfg, source=str(used))
+    except CheckpointError as e:
+        raise UsageError(str(e)) from None
+    cur = None
+    if extra.get("curriculum") is not None:
+        cur_state = extra["curriculum"]
+        cur = WaypointCurriculum(
+            CurriculumConfig.from_json(cur_state["config"]), cfg.num_envs, cfg.rollout_steps, ppo.env_cfg.episode_steps
+        )
+        cur.load_state_dict(cur_state)
+        ppo.env.set_target_radius(cur.radius)
+    _clean_stale_temps(out)
+    try:
+        dropped = truncate_metrics(out / "metrics.csv", ppo.updates)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    config_path = out / "config.json"
+    config = json.loads(config_path.read_text()) if config_path.exists() else {}
+    config["ppo"] = cfg.to_json()
+    config.setdefault("resumes", []).append(
+        {
+            "command": _command(argv),
+            "from": used.name,
+            "update": ppo.updates,
+            "at": _now(),
+            "metrics_rows_dropped": dropped,
+        }
+    )
+    write_json(config_path, config)
+    print(
+        f"quad-train: resuming {out} from {used.name} at update {ppo.updates} ({ppo.global_step:,} steps)", flush=True
+    )
+    return ppo, cur, extra.get("preset"), float(extra.get("elapsed_s", 0.0))
+
+
+def _train(args, argv: list[str]) -> int:
+    from .checkpoint import POLICY, save_checkpoint, save_for_resume
+    from .evaluate import evaluate
+    from .ppo import PPOConfig
+    from .runlog import MetricsLog, plot_curves, write_json
+
+    explicit = {k: getattr(args, k) for k in PPO_OPTIONS if getattr(args, k) is not None}
+    seed = explicit.get("seed", PPOConfig.seed)
+    out = Path(args.out or f"runs/{args.task}-seed{seed}")
+    ppo, cur, preset, elapsed0 = (_resume if args.resume else _start_fresh)(args, explicit, out, argv)
+    cfg = ppo.cfg
+    t0 = time.perf_counter()
+    eval_s = 0.0  # time spent in periodic evaluations: not training time
+    first_success = _stored_first_success(out) if args.resume else None
+
+    def train_time() -> float:
+        return elapsed0 + time.perf_counter() - t0 - eval_s
+
+    def extra(metrics: dict | None) -> dict:
+        return {
+            "preset": preset,
+            "curriculum": cur.state_dict() if cur else None,
+            "metrics": metrics or {},
+            "elapsed_s": train_time(),
+            "first_success": first_success,
+            "command": _command(argv),
+        }
+
+    last: dict | None = None
+    saved_at = ppo.updates if args.resume else -1
+    label = f"quad-train {args.task}"
+    progress = _Progress(label, ppo.global_step, cfg.num_updates * cfg.batch_size)
+    try:
+        with _Stop() as stop, MetricsLog(out / "metrics.csv") as log:
+            while ppo.updates < cfg.num_updates and stop.signal is None:
+                m = ppo.iterate()
+                m["time_s"] = train_time()
+                if args.eval_every and ppo.updates % args.eval_every == 0:
+                    te = time.perf_counter()
+                    r = evaluate(ppo.act_deterministic, _eval_config(ppo, cur), episodes=args.eval_episodes or 100)
+                    eval_s += time.perf_counter() - te
+                    m["eval_success_rate"] = r[SUCCESS_KEY.get(args.task, "success_rate")]
+                    m["eval_error_m"] = r["mean_error_last_window_m"]
+                    final_stage = cur is None or cur.stage == len(cur.cfg.radii) - 1
+                    if first_success is None and final_stage and m["eval_success_rate"] >= SUCCESS_BAR:
+                        first_success = {
+                            "global_step": ppo.global_step,
+                            "update": ppo.updates,
+                            "train_time_s": m["time_s"],
+                            "success_rate": m["eval_success_rate"],
+                            "episodes": r["episodes"],
+                        }
+                if cur is not None:
+                    m["curriculum_stage"], m["target_radius"] = cur.stage, cur.radius
+                    n = int(m["episodes"])
+                    if cur.observe(ppo.ep_success[len(ppo.ep_success) - n :] if n else []):
+                        ppo.env.set_target_radius(cur.radius)
+                log.write(m)  # the row first: a kill before the save leaves a row the resume drops
+                last = m
+                if ppo.updates % args.checkpoint_every == 0 or ppo.updates == cfg.num_updates:
+                    save_for_resume(out, ppo, extra(m))
+                    saved_at = ppo.updates
+                progress.update(m)
+            if saved_at != ppo.updates:
+                save_for_resume(out, ppo, extra(last))
+    except KeyboardInterrupt:  # a second Ctrl-C: the last saved checkpoint stands
+        progress.close()
+        print(f"\nquad-train: aborted; the checkpoint of update {saved_at} in {out} is intact.", file=sys.stderr)
+        print(f"Resume with: {_command(_resume_argv(argv))}", file=sys.stderr)
+        return 130
+    finally:
+        progress.close()
+    plot_curves(out / "metrics.csv", out / "curves.png", f"{args.task}, {out.name}", cur.cfg.radii if cur else ())
+    if stop.signal is not None and ppo.updates < cfg.num_updates:
+        print(
+            f"quad-train: stopped by {stop.signal} after update {ppo.updates}/{cfg.num_updates}; "
+            f"checkpoint saved in {out / 'checkpoint.pt'}.\nResume with: {_command(_resume_argv(argv))}",
+            file=sys.stderr,
+        )
+        return 130
+    save_checkpoint(out / POLICY, ppo, extra(last))
+    summary = f"quad-train: done, {ppo.global_step:,} steps in {ppo.updates} updates; policy in {out / POLICY}"
+    if args.eval_episodes:
+        result = evaluate(ppo.act_deterministic, _eval_config(ppo, cur), episodes=args.eval_episodes)
+        meta = {
+            "policy": POLICY,
+            "global_step": ppo.global_step,
+            "updates": ppo.updates,
+            "train_time_s": extra(last)["elapsed_s"],
+            "first_success": first_success,
+            "time_breakdown_s": _time_breakdown(out / "metrics.csv"),
+        }
+        if cur is not None:
+            meta.update(curriculum_stage=cur.stage, target_radius=cur.radius)
+        write_json(out / "eval.json", {**meta, **result})
+        summary += f"; evaluation: success {result['success_rate']:.0%} over {args.eval_episodes} episodes"
+    print(summary, flush=True)
+    return 0
+
+
+SUCCESS_BAR = 0.95  # the issue's bar: success rate over 100 deterministic episodes
+SUCCESS_KEY = {"circle": "circle_success_rate"}  # hover and waypoint use evaluate()'s success_rate
+
+
+def _eval_config(ppo, cur):
+    """The environment a policy is judged on: the training one, at the radius the waypoint
+    curriculum has reached."""
+    if cur is None:
+        return ppo.env_cfg
+    return dataclasses.replace(ppo.env_cfg, target_radius=cur.radius)
+
+
+def _stored_first_success(out: Path) -> dict | None:
+    from .checkpoint import CheckpointError, load_for_resume
+
+    try:
+        ckpt, _, _ = load_for_resume(out)
+    except CheckpointError:
+        return None
+    return ckpt["extra"].get("first_success")
+
+
+def _time_breakdown(metrics_path: Path) -> dict:
+    """Where the training time went, summed over every update in metrics.csv: the environment
+    (dynamics, observations, rewards, resets), policy inference and bookkeeping during rollouts,
+    and the PPO update (GAE is in the rollout figure)."""
+    from .runlog import read_metrics
+
+    m = read_metrics(metrics_path)
+    parts = {k: float(np.nansum(m[k])) for k in ("env_s", "inference_s", "update_s")}
+    total = sum(parts.values())
+    return {**parts, "fractions": {k: (v / total if total else None) for k, v in parts.items()}}
+
+
+def _resume_argv(argv: list[str]) -> list[str]:
+    return argv if "--resume" in argv else [*argv, "--resume"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_parser().parse_args(argv)
+        return _train(args, argv)
+    except SystemExit as e:  # --help
+        return e.code if isinstance(e.code, int) else 0
+    except UsageError as e:
+        print(f"quad-train: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # Ctrl-C before training started (during the training loop, see _Stop)
+        print("\nquad-train: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        from .ppo import NonFiniteError
+
+        if isinstance(e, NonFiniteError):
+            print(f"quad-train: error: {e}", file=sys.stderr)
+            return 1
+        raise
+
+
+if __name__ == "__main__":
+    sys.exit(main())

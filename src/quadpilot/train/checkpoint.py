@@ -1,0 +1,302 @@
+"""Checkpoints: everything needed to resume training bit for bit, or to deploy the policy.
+
+A checkpoint is a `torch.save` file holding tensors and JSON-able data only (dict, list, tuple, str,
+int, float, bool, None), so `torch.load(path, weights_only=True)` reads it and no pickle of ours is
+ever executed (DESIGN "Conventions"). Top-level keys:
+
+    schema          "quadpilot.checkpoint/1"
+    ppo_config      PPOConfig.to_json()
+    env_config      EnvConfig.to_json() (the vehicle written out in full)
+    obs_layout      the observation layout table, ObsLayout.to_json()
+    model           ActorCritic state_dict (tensors)
+    optimizer       Adam state_dict
+    obs_rms         running mean/std of observations: {"mean", "var": float64 tensors, "count", "clip"}
+    global_step     environment steps so far; updates: PPO updates so far
+    trainer         PPO bookkeeping: non-finite streak, recent episode returns/lengths/successes,
+                    the current raw observation
+    env             the vector environment mid-episode: state arrays (tensors) and target radius
+    rng             numpy Generator state of the environment (a dict of ints), torch.Generator
+                    state and torch's default RNG state (uint8 tensors)
+    extra           free JSON-able data from the caller; quad-train puts the curriculum state, the
+                    last metrics, the elapsed time and the preset name here
+
+`policy.pt` (the deployable file that quad-export reads) has the same format as `checkpoint.pt`.
+
+Writes are atomic: a temporary file in the same directory, flushed and fsync'd, then `os.replace`,
+then the directory fsync'd, so a crash or `kill -9` leaves either the old file or the new one,
+never half of one. For resuming, `save_for_resume` keeps two generations (`checkpoint.pt` and
+`checkpoint.prev.pt`), and `load_for_resume` falls back to the older one if the newer is unreadable.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import torch
+
+from .envs import EnvConfig
+from .ppo import PPO, PPOConfig
+
+SCHEMA = "quadpilot.checkpoint/1"
+LATEST = "checkpoint.pt"
+PREVIOUS = "checkpoint.prev.pt"
+POLICY = "policy.pt"
+
+REQUIRED = (
+    "schema",
+    "ppo_config",
+    "env_config",
+    "obs_layout",
+    "model",
+    "optimizer",
+    "obs_rms",
+    "global_step",
+    "updates",
+    "trainer",
+    "env",
+    "rng",
+    "extra",
+)
+# QuadBatch arrays that hold an episode in flight; restoring them lets a resumed run continue the
+# very episodes the checkpoint interrupted instead of resetting every drone.
+_ENV_ARRAYS = ("state", "rotor", "target", "target_vel", "phase", "steps", "ep_return", "err_sum", "obs")
+_BIT_GENERATORS = ("PCG64", "PCG64DXSM", "Philox", "SFC64", "MT19937")
+
+
+class CheckpointError(Exception):
+    """A checkpoint file is missing, unreadable, truncated, or not one this version understands."""
+
+
+# --- plain data -----------------------------------------------------------------------------
+
+
+def _tensor(a: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.array(a, copy=True))
+
+
+def plain(obj: Any) -> Any:
+    """`obj` with NumPy scalars made Python numbers and arrays made tensors; raises TypeError on
+    anything that `torch.load(weights_only=True)` would refuse."""
+    if isinstance(obj, np.generic):  # before the float check: np.float64 is a float subclass
+        return obj.item()
+    if obj is None or isinstance(obj, (bool, int, float, str, torch.Tensor)):
+        return obj
+    if isinstance(obj, np.ndarray):
+        return _tensor(obj)
+    if isinstance(obj, dict):
+        bad = [k for k in obj if not isinstance(k, (str, int))]
+        if bad:
+            raise TypeError(f"checkpoint dict keys must be str or int, got {bad!r}")
+        return {k: plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(plain(v) for v in obj)
+    raise TypeError(
+        f"checkpoints hold tensors and JSON-able data only; got {type(obj).__name__}. Convert it to "
+        "a dict/list/str/number first."
+    )
+
+
+# --- PPO state ------------------------------------------------------------------------------
+
+
+def ppo_state_dict(ppo: PPO) -> dict:
+    """Everything that changes while `ppo` trains, as tensors and plain data (copies, not views)."""
+    batch = ppo.env.batch
+    rms = ppo.obs_rms
+    return {
+        "model": {k: v.detach().clone() for k, v in ppo.model.state_dict().items()},
+        "optimizer": copy.deepcopy(ppo.opt.state_dict()),
+        "obs_rms": {"mean": _tensor(rms.mean), "var": _tensor(rms.var), "count": rms.count, "clip": rms.clip},
+        "global_step": int(ppo.global_step),
+        "updates": int(ppo.updates),
+        "trainer": {
+            "nonfinite_streak": int(ppo._nonfinite_streak),
+            "ep_returns": [float(x) for x in ppo.ep_returns],
+            "ep_lengths": [int(x) for x in ppo.ep_lengths],
+            "ep_success": [bool(x) for x in ppo.ep_success],
+            "obs": _tensor(ppo._obs),
+        },
+        "env": {
+            **{name: _tensor(getattr(batch, name)) for name in _ENV_ARRAYS},
+            "target_radius": float(batch.target_radius),
+            "started": bool(ppo.env._started),
+        },
+        "rng": {
+            "env": copy.deepcopy(ppo.env._rng.bit_generator.state),
+            "torch_gen": ppo.torch_gen.get_state(),
+            "torch_default": torch.get_rng_state(),
+        },
+    }
+
+
+def load_ppo_state(ppo: PPO, state: dict, source: str = "checkpoint") -> None:
+    """Put `state` (from `ppo_state_dict` or a loaded checkpoint) into `ppo`, which must have been
+    built with the same configuration. Raises CheckpointError if the shapes do not fit."""
+    batch = ppo.env.batch
+    for name in _ENV_ARRAYS:
+        want, got = getattr(batch, name), state["env"][name]
+        if tuple(got.shape) != want.shape:
+            raise CheckpointError(
+                f"{source}: environment array {name!r} has shape {tuple(got.shape)}, this trainer expects "
+                f"{want.shape}; was it saved with a different num_envs or task?"
+            )
+    try:
+        ppo.model.load_state_dict(state["model"])
+        ppo.opt.load_state_dict(state["optimizer"])
+    except (RuntimeError, ValueError, KeyError) as e:
+        raise CheckpointError(f"{source}: weights do not fit this network ({e})") from e
+    rms = ppo.obs_rms
+    rms.load_state_dict({k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state["obs_rms"].items()})
+    ppo.global_step = int(state["global_step"])
+    ppo.updates = int(state["updates"])
+    tr = state["trainer"]
+    ppo._nonfinite_streak = int(tr["nonfinite_streak"])
+    ppo.ep_returns = [float(x) for x in tr["ep_returns"]]
+    ppo.ep_lengths = [int(x) for x in tr["ep_lengths"]]
+    ppo.ep_success = [bool(x) for x in tr["ep_success"]]
+    ppo._obs = tr["obs"].numpy().copy()
+    for name in _ENV_ARRAYS:
+        setattr(batch, name, state["env"][name].numpy().astype(getattr(batch, name).dtype, copy=True))
+    batch.target_radius = float(state["env"]["target_radius"])
+    ppo.env._started = bool(state["env"]["started"])
+    rng = state["rng"]
+    kind = rng["env"].get("bit_generator")
+    if kind not in _BIT_GENERATORS:
+        raise CheckpointError(f"{source}: unknown numpy bit generator {kind!r}; expected one of {_BIT_GENERATORS}")
+    bitgen = getattr(np.random, kind)()
+    bitgen.state = rng["env"]
+    ppo.env._rng = np.random.Generator(bitgen)
+    ppo.torch_gen.set_state(rng["torch_gen"])
+    torch.set_rng_state(rng["torch_default"])
+
+
+def checkpoint_dict(ppo: PPO, extra: dict | None = None) -> dict:
+    """The full checkpoint content for `ppo` (see the module docstring)."""
+    return plain(
+        {
+            "schema": SCHEMA,
+            "created_unix": time.time(),
+            "ppo_config": ppo.cfg.to_json(),
+            "env_config": ppo.env_cfg.to_json(),
+            "obs_layout": ppo.env_cfg.layout.to_json(),
+            **ppo_state_dict(ppo),
+            "extra": dict(extra or {}),
+        }
+    )
+
+
+def ppo_from_checkpoint(ckpt: dict, cfg: PPOConfig | None = None, source: str = "checkpoint") -> PPO:
+    """A PPO trainer rebuilt from a loaded checkpoint, ready to continue. `cfg` may replace the
+    stored PPOConfig (e.g. a longer total_steps); the network and batch shapes must still fit."""
+    cfg = cfg or PPOConfig.from_json(ckpt["ppo_config"])
+    ppo = PPO(cfg, EnvConfig.from_json(ckpt["env_config"]))
+    load_ppo_state(ppo, ckpt, source)
+    return ppo
+
+
+# --- files ----------------------------------------------------------------------------------
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a rename durable: fsync the directory entry (POSIX; Windows cannot open directories)."""
+    if os.name == "nt":
+        return
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], None], keep_previous: str | None = None) -> Path:
+    """Write `path` atomically: `write(f)` into a temporary file beside it, flush, fsync,
+    optionally move the current file to `keep_previous` (a name in the same directory), then
+    `os.replace` the temporary file onto `path` and fsync the directory.
+
+    A crash leaves the old `path`, or (between the two renames) only `keep_previous`; never a torn
+    file. A leftover `.<name>.*.tmp` is harmless and may be deleted."""
+    path = Path(path)
+    directory = path.parent
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        if keep_previous is not None and path.exists():
+            os.replace(path, directory / keep_previous)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    _fsync_dir(directory)
+    return path
+
+
+def save_checkpoint(
+    path: str | os.PathLike, ppo: PPO, extra: dict | None = None, keep_previous: str | None = None
+) -> Path:
+    """Write `ppo` (and the JSON-able `extra`) to `path` atomically; see `atomic_write`."""
+    data = checkpoint_dict(ppo, extra)
+    return atomic_write(path, lambda f: torch.save(data, f), keep_previous)
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict:
+    """Read and check a checkpoint with `torch.load(weights_only=True)`.
+
+    Raises CheckpointError naming the file and what was expected if it is missing, truncated,
+    not a torch file, not a quadpilot checkpoint, or of another schema version."""
+    path = Path(path)
+    expected = f"a quadpilot checkpoint (torch.save file, schema {SCHEMA!r})"
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such file; expected {expected}")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises many types for a bad zip, a bad pickle, a short read
+        reason = " ".join(str(e).split())[:200]
+        raise CheckpointError(
+            f"{path}: unreadable ({type(e).__name__}: {reason}); the file is truncated or corrupt, or not {expected}"
+        ) from e
+    if not isinstance(ckpt, dict) or "schema" not in ckpt:
+        raise CheckpointError(f"{path}: holds a {type(ckpt).__name__} without a 'schema' key; expected {expected}")
+    if ckpt["schema"] != SCHEMA:
+        raise CheckpointError(f"{path}: schema {ckpt['schema']!r}; this version of quadpilot reads {SCHEMA!r}")
+    missing = [k for k in REQUIRED if k not in ckpt]
+    if missing:
+        raise CheckpointError(f"{path}: schema {SCHEMA!r} but missing {missing}; the file is damaged")
+    return ckpt
+
+
+def save_for_resume(directory: str | os.PathLike, ppo: PPO, extra: dict | None = None) -> Path:
+    """Write `directory/checkpoint.pt`, first moving the current one to `checkpoint.prev.pt`."""
+    return save_checkpoint(Path(directory) / LATEST, ppo, extra, keep_previous=PREVIOUS)
+
+
+def has_checkpoint(directory: str | os.PathLike) -> bool:
+    d = Path(directory)
+    return (d / LATEST).exists() or (d / PREVIOUS).exists()
+
+
+def load_for_resume(directory: str | os.PathLike) -> tuple[dict, Path, str | None]:
+    """The newest readable checkpoint in `directory`: (checkpoint, its path, warning or None).
+
+    Tries `checkpoint.pt`, then `checkpoint.prev.pt`; the warning says why the newer one was
+    skipped. Raises CheckpointError with both reasons if neither can be read."""
+    d = Path(directory)
+    try:
+        return load_checkpoint(d / LATEST), d / LATEST, None
+    except CheckpointError as latest_error:
+        try:
+            ckpt = load_checkpoint(d / PREVIOUS)
+        except CheckpointError as prev_error:
+            raise CheckpointError(f"no usable checkpoint in {d}: {latest_error}; and {prev_error}") from None
+        warning = f"{latest_error}; resuming from the previous checkpoint {d / PREVIOUS} instead"
+        return ckpt, d / PREVIOUS, warning

@@ -1,0 +1,81 @@
+"""Deterministic evaluation with one success definition for every policy (ours, SB3's, the
+runtime's): a policy is any callable mapping raw observations (N, obs_dim) float32 to actions
+(N, 4) in [−1, 1].
+
+Hover/waypoint success (the project's bar): the episode does not crash and the mean position error
+over its last 2 s is ≤ 0.05 m. Circle: radial RMS error and speed error measured after the first
+lap, over an episode of two laps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from .envs import EnvConfig, QuadBatch
+
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int = 12345) -> dict:
+    """Run `episodes` episodes side by side from seeded random starts; returns a JSON-able dict."""
+    cfg = env_cfg
+    if cfg.task == "circle":  # two laps; the first is the approach
+        lap_steps = math.ceil(2 * math.pi * cfg.circle_radius / cfg.circle_speed / cfg.dt)
+        cfg = dataclasses.replace(cfg, episode_steps=2 * lap_steps)
+    batch = QuadBatch(cfg, episodes)
+    batch.reset(np.ones(episodes, bool), np.random.default_rng(seed))
+    T, window = cfg.episode_steps, cfg.success_steps
+    alive = np.ones(episodes, bool)
+    length = np.full(episodes, T)
+    err_sum = np.zeros(episodes)
+    final_err = np.zeros(episodes)
+    ep_return = np.zeros(episodes)
+    rad_sq = np.zeros(episodes)
+    spd_abs = np.zeros(episodes)
+    tracked = 0
+    for t in range(T):
+        action = np.asarray(policy(batch.obs.copy()), dtype=np.float32)
+        _, reward, term, _, err = batch.step(action)
+        ep_return += np.where(alive, reward, 0.0)
+        newly = alive & term
+        length[newly] = t + 1
+        final_err = np.where(alive, err, final_err)
+        alive &= ~term
+        if t >= T - window:
+            err_sum += err
+        if cfg.task == "circle" and t >= T // 2:
+            e_r, e_v = batch.circle_metrics()
+            rad_sq += e_r**2
+            spd_abs += np.abs(e_v)
+            tracked += 1
+    mean_err = err_sum / window
+    success = alive & (mean_err <= cfg.success_tolerance)
+    out = {
+        "task": cfg.task,
+        "episodes": episodes,
+        "seed": seed,
+        "episode_steps": T,
+        "success_rate": float(success.mean()),
+        "crash_rate": float((~alive).mean()),
+        "mean_return": float(ep_return.mean()),
+        "mean_length": float(length.mean()),
+        "mean_error_last_window_m": float(mean_err[alive].mean()) if alive.any() else float("nan"),
+        "max_error_last_window_m": float(mean_err[alive].max()) if alive.any() else float("nan"),
+        "mean_final_distance_m": float(final_err[alive].mean()) if alive.any() else float("nan"),
+        "success_tolerance_m": cfg.success_tolerance,
+        "window_s": cfg.success_window,
+    }
+    if cfg.task == "circle":
+        rms = np.sqrt(rad_sq / max(tracked, 1))
+        spd = spd_abs / max(tracked, 1)
+        ok = alive & (rms <= 0.05) & (spd <= 0.1)
+        out.update(
+            radial_rms_m=float(rms[alive].mean()) if alive.any() else float("nan"),
+            speed_error_mps=float(spd[alive].mean()) if alive.any() else float("nan"),
+            circle_success_rate=float(ok.mean()),
+        )
+    return out

@@ -1,0 +1,42 @@
+"""Generalised Advantage Estimation (Schulman et al. 2016, "High-Dimensional Continuous Control
+Using Generalized Advantage Estimation", eqs. 11–16), as a pure function.
+
+    δ_t = r_t + γ·(1 − terminated_t)·V(s_{t+1}) − V(s_t)                   (eq. 10, TD residual)
+    Â_t = δ_t + γλ·(1 − done_t)·Â_{t+1},  done_t = terminated_t or truncated_t   (eq. 16)
+    R_t = Â_t + V(s_t)                                                     (the value target)
+
+`next_values[t]` is V of the state the environment actually reached after step t: on a time-limit
+truncation that is the final observation (kept by the vector env), not the reset observation that
+follows. Terminated steps do not bootstrap (the future is worth nothing after a crash); truncated
+steps do (the time limit is not part of the task), which SB3 does and many scripts get wrong.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def compute_gae(
+    rewards: np.ndarray,
+    values: np.ndarray,
+    next_values: np.ndarray,
+    terminated: np.ndarray,
+    truncated: np.ndarray,
+    gamma: float = 0.99,
+    lam: float = 0.95,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Advantages and returns, each (T, N). All inputs (T, N); terminated/truncated boolean.
+
+    Vectorised over N; one pass backwards over T."""
+    shapes = {a.shape for a in (rewards, values, next_values, terminated, truncated)}
+    if len(shapes) != 1 or rewards.ndim != 2:
+        raise ValueError(f"all inputs must share one (T, N) shape, got {sorted(shapes)}")
+    not_term = 1.0 - terminated.astype(np.float64)
+    not_done = 1.0 - (terminated | truncated).astype(np.float64)
+    deltas = rewards + gamma * not_term * next_values - values
+    adv = np.zeros(rewards.shape, np.float64)
+    last = np.zeros(rewards.shape[1], np.float64)
+    for t in range(rewards.shape[0] - 1, -1, -1):
+        last = deltas[t] + gamma * lam * not_done[t] * last
+        adv[t] = last
+    return adv, adv + values

@@ -1,0 +1,201 @@
+"""The files of a training run other than checkpoints: metrics.csv, JSON files, curves.png.
+
+metrics.csv has a fixed header (`COLUMNS`) and one row per PPO update, appended, flushed and
+fsync'd as soon as the update ends, so a kill loses at most the row being written. A resumed run
+first cuts the file back to the checkpoint's update count (`truncate_metrics`), so every update
+number appears once.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .checkpoint import atomic_write
+
+COLUMNS = (
+    "global_step",
+    "update",
+    "time_s",
+    "policy_loss",
+    "value_loss",
+    "entropy",
+    "approx_kl",
+    "clip_fraction",
+    "explained_variance",
+    "grad_norm",
+    "lr",
+    "steps_per_s",
+    "rollout_s",
+    "env_s",
+    "inference_s",
+    "update_s",
+    "ep_return",
+    "ep_length",
+    "success_rate",
+    "episodes",
+    "nonfinite_skipped",
+    "curriculum_stage",
+    "target_radius",
+    "eval_success_rate",
+    "eval_error_m",
+)
+HEADER = ",".join(COLUMNS)
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""  # e.g. curriculum columns of a task without a curriculum
+    if isinstance(v, (bool, np.bool_)):
+        return str(int(v))
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    return repr(float(v))  # shortest exact round trip; nan/inf as "nan"/"inf"
+
+
+class MetricsLog:
+    """Append-only metrics.csv writer with a fixed header; keys not in COLUMNS are ignored and
+    missing ones left blank."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        fresh = not self.path.exists() or self.path.stat().st_size == 0
+        self._f = open(self.path, "a", encoding="utf-8", newline="")  # closed in close()
+        if fresh:
+            self._write_line(HEADER)
+
+    def _write_line(self, line: str) -> None:
+        self._f.write(line + "\n")
+        self._f.flush()
+        os.fsync(self._f.fileno())
+
+    def write(self, metrics: dict) -> None:
+        self._write_line(",".join(_cell(metrics.get(c)) for c in COLUMNS))
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> MetricsLog:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    """Complete, well-formed rows of a metrics.csv; a torn last line (a kill mid-write) is dropped.
+    Raises ValueError if the header is not this version's."""
+    text = path.read_text(encoding="utf-8")
+    lines = text.split("\n")
+    complete = lines[:-1]  # everything before the last newline; a torn tail is lines[-1]
+    if not complete:
+        return []
+    if complete[0] != HEADER:
+        raise ValueError(f"{path}: header {complete[0]!r} is not the expected {HEADER!r}")
+    out = []
+    for row in csv.reader(complete[1:]):
+        if len(row) != len(COLUMNS):
+            continue
+        d = dict(zip(COLUMNS, row, strict=True))
+        try:
+            int(d["update"])
+        except ValueError:
+            continue
+        out.append(d)
+    return out
+
+
+def truncate_metrics(path: str | os.PathLike, updates: int) -> int:
+    """Keep the rows of updates 1..`updates` (a checkpoint's count) and rewrite the file
+    atomically; returns how many rows were dropped. A missing file is created with the header."""
+    path = Path(path)
+    rows = _rows(path) if path.exists() else []
+    keep = [r for r in rows if int(r["update"]) <= updates]
+    buf = io.StringIO()
+    buf.write(HEADER + "\n")
+    for r in keep:
+        buf.write(",".join(r[c] for c in COLUMNS) + "\n")
+    atomic_write(path, lambda f: f.write(buf.getvalue().encode("utf-8")))
+    return len(rows) - len(keep)
+
+
+def read_metrics(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """metrics.csv as float columns (blank cells are NaN)."""
+    rows = _rows(Path(path))
+
+    def num(s: str) -> float:
+        return float(s) if s else math.nan
+
+    return {c: np.array([num(r[c]) for r in rows], np.float64) for c in COLUMNS}
+
+
+def _json_safe(obj):
+    """Non-finite floats become None so the file is standard JSON (RFC 8259 has no NaN)."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+def write_json(path: str | os.PathLike, data: dict) -> Path:
+    """Write `data` as indented standard JSON, atomically."""
+    text = json.dumps(_json_safe(data), indent=2, allow_nan=False) + "\n"
+    return atomic_write(path, lambda f: f.write(text.encode("utf-8")))
+
+
+def plot_curves(
+    metrics_path: str | os.PathLike, out_path: str | os.PathLike, title: str = "", radii: tuple[float, ...] = ()
+) -> Path:
+    """curves.png: episode return, episode length and success rate against environment steps,
+    and the curriculum stage where there is one (`radii`: the radius of each stage, for the
+    axis labels). Uses the Agg canvas directly (no pyplot, no
+    global backend switch)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    m = read_metrics(metrics_path)
+    x = m["global_step"]
+    has_stage = bool(np.isfinite(m["curriculum_stage"]).any())
+    panels = [("ep_return", "episode return"), ("ep_length", "episode length (steps)"), ("success_rate", "success")]
+    if has_stage:
+        panels.append(("curriculum_stage", "curriculum stage"))
+    fig = Figure(figsize=(8, 2.2 * len(panels)), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        if key == "curriculum_stage":
+            ax.step(x, m[key], where="post", color="C3")
+            seen = {
+                int(s): r for s, r in zip(m[key], m["target_radius"], strict=True) if np.isfinite(s) and np.isfinite(r)
+            }
+            labels = {**seen, **dict(enumerate(radii))}
+            ax.set_yticks(sorted(labels), [f"{s} ({labels[s]:g} m)" for s in sorted(labels)])
+            ax.set_ylim(-0.3, max(labels) + 0.3)
+        else:
+            ax.plot(x, m[key], lw=1.2)
+        if key == "success_rate":
+            ax.set_ylim(-0.02, 1.02)
+            ev = np.isfinite(m["eval_success_rate"])
+            if ev.any():  # the deterministic evaluations (--eval-every) on the same axes
+                ax.plot(
+                    x[ev], m["eval_success_rate"][ev], "o-", ms=3, lw=1, color="C2", label="evaluation (mean action)"
+                )
+                ax.lines[0].set_label("training episodes")
+                ax.legend(loc="lower right", fontsize=8)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("environment steps")
+    if title:
+        fig.suptitle(title)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    return atomic_write(out_path, lambda f: f.write(buf.getvalue()))
