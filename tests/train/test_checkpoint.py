@@ -210,3 +210,32 @@ def test_resuming_restores_the_curriculum_radius_in_flight(tmp_path):
     restored = ppo_from_checkpoint(load_checkpoint(tmp_path / "c.pt"))
     assert restored.env.batch.target_radius == 2.0
     assert math.isclose(restored.env.batch.target_radius, ppo.env.batch.target_radius)
+
+
+@pytest.mark.parametrize("normalize_obs", [False, True])
+def test_load_policy_acts_like_the_trainer(tmp_path, normalize_obs):
+    """The deployable view of a checkpoint (no trainer, no environment) gives the trainer's
+    deterministic actions bit for bit, with and without the observation normaliser."""
+    import dataclasses
+
+    from quadpilot.train.checkpoint import load_policy
+
+    cfg = dataclasses.replace(TINY, normalize_obs=normalize_obs)
+    ppo = PPO(cfg, make_config("circle", episode_steps=24))
+    ppo.iterate()
+    save_checkpoint(tmp_path / "policy.pt", ppo)
+    policy = load_policy(tmp_path / "policy.pt")
+    assert policy.layout.name == "quadpilot.obs.track/1" and policy.env_config.task == "circle"
+    obs = np.random.default_rng(0).normal(size=(200, 21)).astype(np.float32)
+    np.testing.assert_array_equal(policy(obs), ppo.act_deterministic(obs))
+    with pytest.raises(ValueError, match=r"\(N, 21\)"):
+        policy(obs[:, :18])
+
+
+def test_load_policy_refuses_an_unknown_layout(tmp_path):
+    from quadpilot.train.checkpoint import TrainedPolicy, checkpoint_dict
+
+    ckpt = checkpoint_dict(tiny("hover"))
+    ckpt["obs_layout"] = {**ckpt["obs_layout"], "name": "quadpilot.obs.hover/999"}
+    with pytest.raises(CheckpointError, match="hover/999"):
+        TrainedPolicy(ckpt, "x.pt")

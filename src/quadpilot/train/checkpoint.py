@@ -300,3 +300,60 @@ def load_for_resume(directory: str | os.PathLike) -> tuple[dict, Path, str | Non
             raise CheckpointError(f"no usable checkpoint in {d}: {latest_error}; and {prev_error}") from None
         warning = f"{latest_error}; resuming from the previous checkpoint {d / PREVIOUS} instead"
         return ckpt, d / PREVIOUS, warning
+
+
+# --- the deployable policy ------------------------------------------------------------------
+
+
+class TrainedPolicy:
+    """The deterministic policy of a checkpoint, without a trainer or an environment: a callable
+    from raw observations (N, obs_dim) float32 to actions (N, 4) in [−1, 1], the same mapping as
+    `PPO.act_deterministic` (normalisation if the run used it, then the clipped mean action).
+
+    Build with `load_policy(path)`. `env_config` is the environment it was trained on."""
+
+    def __init__(self, ckpt: dict, source: str = "checkpoint") -> None:
+        from quadpilot.core.normalize import RunningMeanStd
+        from quadpilot.core.observation import get_layout
+
+        from .networks import ActorCritic
+
+        self.source = source
+        self.ppo_config = PPOConfig.from_json(ckpt["ppo_config"])
+        self.env_config = EnvConfig.from_json(ckpt["env_config"])
+        try:
+            self.layout = get_layout(ckpt["obs_layout"]["name"])
+        except ValueError as e:
+            raise CheckpointError(f"{source}: {e}") from None
+        if self.layout.name != self.env_config.layout.name:
+            raise CheckpointError(
+                f"{source}: observation layout {self.layout.name!r} does not match its {self.env_config.task} "
+                f"environment, which uses {self.env_config.layout.name!r}"
+            )
+        c = self.ppo_config
+        self.model = ActorCritic(
+            self.layout.dim, 4, c.actor_hidden, c.critic_hidden, c.activation, c.init_log_std
+        ).eval()
+        try:
+            self.model.load_state_dict(ckpt["model"])
+        except (RuntimeError, KeyError) as e:
+            raise CheckpointError(f"{source}: weights do not fit the network its config describes ({e})") from e
+        self.obs_rms = RunningMeanStd((self.layout.dim,))
+        self.obs_rms.load_state_dict(
+            {k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in ckpt["obs_rms"].items()}
+        )
+        self.global_step = int(ckpt["global_step"])
+        self.extra = ckpt.get("extra", {})
+
+    @torch.inference_mode()
+    def __call__(self, raw_obs: np.ndarray) -> np.ndarray:
+        raw_obs = np.asarray(raw_obs, np.float32)
+        if raw_obs.ndim != 2 or raw_obs.shape[1] != self.layout.dim:
+            raise ValueError(f"observations must have shape (N, {self.layout.dim}), got {raw_obs.shape}")
+        x = self.obs_rms.normalize(raw_obs) if self.ppo_config.normalize_obs else raw_obs
+        return self.model.mean_action(torch.from_numpy(x)).numpy()
+
+
+def load_policy(path: str | os.PathLike) -> TrainedPolicy:
+    """The deterministic policy in a checkpoint (policy.pt); CheckpointError if it cannot be used."""
+    return TrainedPolicy(load_checkpoint(path), source=str(path))
