@@ -218,3 +218,17 @@ def test_unknown_layout_is_refused():
     with pytest.raises(ValueError, match=r"quadpilot\.obs\.hover/999") as err:
         get_layout("quadpilot.obs.hover/999")
     assert "quadpilot.obs.track/1" in str(err.value)
+
+
+def test_tilt_penalty_only_beyond_the_soft_limit():
+    from quadpilot.core.reward import RewardConfig, hover_reward
+
+    cfg = RewardConfig(tilt_weight=50.0, tilt_soft_deg=40.0)
+    state = np.zeros((3, 12))
+    state[:, IDX["roll"]] = np.radians([30.0, 39.9, 30.0])
+    state[:, IDX["pitch"]] = np.radians([0.0, -20.0, -50.0])  # the larger of |roll|, |pitch| counts
+    r = hover_reward(state, np.zeros((3, 3)), np.zeros(3, bool), cfg)
+    plain = hover_reward(state, np.zeros((3, 3)), np.zeros(3, bool), RewardConfig())
+    assert r[0] == plain[0] and r[1] == plain[1]
+    assert r[2] == pytest.approx(plain[2] - 50.0 * math.radians(10.0) ** 2, rel=1e-12)
+    assert RewardConfig().tilt_weight == 0.0  # off unless a task asks for it

@@ -115,7 +115,11 @@ def make_config(task: str | None = None, **kwargs: Any) -> EnvConfig:
         kwargs["reward"] = RewardConfig(**kwargs["reward"])
     if task is not None:
         kwargs["task"] = task
-    defaults = {"waypoint": {"home": (0.0, 0.0, 3.0), "init_pos_radius": 0.0}, "circle": {"init_pos_radius": 0.5}}
+    defaults = {
+        # waypoint: a soft tilt penalty keeps the race to far targets off the 60° crash limit
+        "waypoint": {"home": (0.0, 0.0, 3.0), "init_pos_radius": 0.0, "reward": RewardConfig(tilt_weight=50.0)},
+        "circle": {"init_pos_radius": 0.5},
+    }
     return EnvConfig(**{**defaults.get(kwargs.get("task", "hover"), {}), **kwargs})
 
 
