@@ -1,5 +1,75 @@
-from quadpilot._stub import not_yet
+"""quad-export: write a trained policy (policy.pt) as an ONNX file that flies as it is.
+
+The graph holds observation normalisation, the deterministic action, clipping and the map to motor
+commands in [0, 1] (PX4 HIL_ACTUATOR_CONTROLS convention); the file carries metadata and golden
+vectors. After writing, it checks the file (onnx.checker, full check) and prints the parity of
+PyTorch, ONNX Runtime and the training-side path on observations from real rollouts and from the
+edges of the training range.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+PARITY_TOLERANCE = 1e-5  # max abs difference in motor command (the export issue's bar)
 
 
-def main(argv=None) -> int:
-    return not_yet("quad-export", "the export/runtime issue")
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        print(f"quad-export: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .onnx_export import DEFAULT_OPSET
+
+    p = _Parser(prog="quad-export", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
+    p.add_argument("checkpoint", type=Path, help="policy.pt (or checkpoint.pt) written by quad-train")
+    p.add_argument("-o", "--output", type=Path, help="ONNX file to write. Default: the checkpoint's name with .onnx")
+    p.add_argument("--opset", type=int, default=DEFAULT_OPSET, help=f"ONNX opset version. Default: {DEFAULT_OPSET}")
+    p.add_argument(
+        "--parity-samples",
+        type=int,
+        default=10_000,
+        metavar="N",
+        help="Observations for the parity check (half rollouts, half range edges). Default: 10000",
+    )
+    try:
+        args = p.parse_args(argv)
+    except SystemExit as e:
+        return e.code if isinstance(e.code, int) else 0
+    if args.parity_samples < 2:
+        print("quad-export: error: --parity-samples must be ≥ 2", file=sys.stderr)
+        return 2
+    out = args.output or args.checkpoint.with_suffix(".onnx")
+
+    from quadpilot.train.checkpoint import CheckpointError
+
+    from .onnx_export import check_parity, export_onnx
+
+    try:
+        meta = export_onnx(args.checkpoint, out, args.opset)
+    except CheckpointError as e:
+        print(f"quad-export: error: {e}", file=sys.stderr)
+        return 2
+    print(
+        f"quad-export: wrote {out} ({out.stat().st_size / 1024:.1f} KiB; task {meta['quadpilot.task']}, "
+        f"{int(meta['quadpilot.training_steps']):,} training steps, opset {args.opset}); onnx.checker: ok"
+    )
+    parity = check_parity(args.checkpoint, out, args.parity_samples)
+    worst = max(v for k, v in parity.items() if k != "observations")
+    print(f"parity over {parity['observations']:,} observations (max abs difference in motor command):")
+    for k, v in parity.items():
+        if k != "observations":
+            print(f"  {k.replace('_', ' '):32s} {v:.2e}")
+    if worst > PARITY_TOLERANCE:
+        print(f"quad-export: error: parity {worst:.2e} exceeds {PARITY_TOLERANCE:g}", file=sys.stderr)
+        return 1
+    print(f"parity within {PARITY_TOLERANCE:g}: ok")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
