@@ -30,7 +30,7 @@ from torch import nn
 
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
-from quadpilot.train.checkpoint import TrainedPolicy, load_checkpoint
+from quadpilot.train.checkpoint import TrainedPolicy, atomic_write, load_checkpoint
 from quadpilot.train.envs import QuadBatch
 
 ONNX_SCHEMA = "quadpilot.onnx/1"
@@ -154,9 +154,8 @@ def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: in
         entry.key, entry.value = k, v
     model.producer_name = "quadpilot quad-export"
     onnx.checker.check_model(model, full_check=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    onnx.save_model(model, tmp)  # small: the weights stay inside the file, no external data
-    os.replace(tmp, out)
+    # small: the weights stay inside the file, no external data
+    atomic_write(out, lambda f: f.write(model.SerializeToString()))
     return meta
 
 

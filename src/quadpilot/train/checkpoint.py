@@ -103,6 +103,11 @@ def plain(obj: Any) -> Any:
     )
 
 
+def _rms_state(saved: dict) -> dict:
+    """A checkpoint's "obs_rms" entry as RunningMeanStd.load_state_dict takes it (arrays, not tensors)."""
+    return {k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in saved.items()}
+
+
 # --- PPO state ------------------------------------------------------------------------------
 
 
@@ -153,7 +158,7 @@ def load_ppo_state(ppo: PPO, state: dict, source: str = "checkpoint") -> None:
     except (RuntimeError, ValueError, KeyError) as e:
         raise CheckpointError(f"{source}: weights do not fit this network ({e})") from e
     rms = ppo.obs_rms
-    rms.load_state_dict({k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state["obs_rms"].items()})
+    rms.load_state_dict(_rms_state(state["obs_rms"]))
     ppo.global_step = int(state["global_step"])
     ppo.updates = int(state["updates"])
     tr = state["trainer"]
@@ -339,9 +344,7 @@ class TrainedPolicy:
         except (RuntimeError, KeyError) as e:
             raise CheckpointError(f"{source}: weights do not fit the network its config describes ({e})") from e
         self.obs_rms = RunningMeanStd((self.layout.dim,))
-        self.obs_rms.load_state_dict(
-            {k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in ckpt["obs_rms"].items()}
-        )
+        self.obs_rms.load_state_dict(_rms_state(ckpt["obs_rms"]))
         self.global_step = int(ckpt["global_step"])
         self.extra = ckpt.get("extra", {})
 

@@ -304,7 +304,7 @@ def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
     )
     MetricsLog(out / "metrics.csv").close()  # the header, so the file exists from the start
     cur = WaypointCurriculum(cur_cfg, cfg.num_envs, cfg.rollout_steps, env_cfg.episode_steps) if cur_cfg else None
-    return ppo, cur, preset, 0.0
+    return ppo, cur, preset, 0.0, None
 
 
 def _resume(args, explicit: dict, out: Path, argv: list[str]):
@@ -383,7 +383,7 @@ def _resume(args, explicit: dict, out: Path, argv: list[str]):
     print(
         f"quad-train: resuming {out} from {used.name} at update {ppo.updates} ({ppo.global_step:,} steps)", flush=True
     )
-    return ppo, cur, extra.get("preset"), float(extra.get("elapsed_s", 0.0))
+    return ppo, cur, extra.get("preset"), float(extra.get("elapsed_s", 0.0)), extra.get("first_success")
 
 
 def _train(args, argv: list[str]) -> int:
@@ -395,11 +395,11 @@ def _train(args, argv: list[str]) -> int:
     explicit = {k: getattr(args, k) for k in PPO_OPTIONS if getattr(args, k) is not None}
     seed = explicit.get("seed", PPOConfig.seed)
     out = Path(args.out or f"runs/{args.task}-seed{seed}")
-    ppo, cur, preset, elapsed0 = (_resume if args.resume else _start_fresh)(args, explicit, out, argv)
+    start = _resume if args.resume else _start_fresh
+    ppo, cur, preset, elapsed0, first_success = start(args, explicit, out, argv)
     cfg = ppo.cfg
     t0 = time.perf_counter()
     eval_s = 0.0  # time spent in periodic evaluations: not training time
-    first_success = _stored_first_success(out) if args.resume else None
 
     def train_time() -> float:
         return elapsed0 + time.perf_counter() - t0 - eval_s
@@ -496,16 +496,6 @@ def _eval_config(ppo, cur):
     if cur is None:
         return ppo.env_cfg
     return dataclasses.replace(ppo.env_cfg, target_radius=cur.radius)
-
-
-def _stored_first_success(out: Path) -> dict | None:
-    from .checkpoint import CheckpointError, load_for_resume
-
-    try:
-        ckpt, _, _ = load_for_resume(out)
-    except CheckpointError:
-        return None
-    return ckpt["extra"].get("first_success")
 
 
 def _time_breakdown(metrics_path: Path) -> dict:
