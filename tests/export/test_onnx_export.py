@@ -11,8 +11,11 @@ import onnxruntime as ort
 import pytest
 
 from quadpilot.export.cli import main
-from quadpilot.export.onnx_export import ONNX_SCHEMA, check_parity, export_onnx, reference_commands
-from quadpilot.train.checkpoint import load_policy
+from quadpilot.export.onnx_export import ONNX_SCHEMA, check_parity, export_onnx, parity_sequences, reference_commands
+from quadpilot.runtime.model import read_model
+from quadpilot.train.checkpoint import load_checkpoint, load_policy, save_untrained_policy
+from quadpilot.train.envs import make_config
+from quadpilot.train.ppo import PPOConfig
 
 MODELS = Path(__file__).parents[2] / "models"
 
@@ -88,6 +91,7 @@ def test_parity_torch_onnxruntime_and_training_path(tmp_path, task):
     parity = check_parity(MODELS / task / "policy.pt", out, n=4000)
     assert parity["observations"] == 4000
     assert max(v for k, v in parity.items() if k != "observations") <= 1e-5, parity
+    assert {"torch_vs_runtime_numpy", "torch_vs_runtime_onnxruntime"} <= set(parity)
 
 
 def test_cli_writes_reports_and_refuses_bad_files(tmp_path, capsys):
@@ -101,3 +105,77 @@ def test_cli_writes_reports_and_refuses_bad_files(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "garbage.pt" in err and "a quadpilot checkpoint" in err and "Traceback" not in err
     assert main([str(tmp_path / "missing.pt")]) == 2
+
+
+# --- the recurrent variant and the normalised MLP -------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def lstm_files(tmp_path_factory):
+    """An LSTM actor of the training code's class (`RecurrentActorCritic`, 64 wide), untrained,
+    its head re-initialised with gain 1 so that commands vary, exported."""
+    d = tmp_path_factory.mktemp("lstm")
+    pt = save_untrained_policy(d / "policy.pt", PPOConfig(arch="lstm", lstm_hidden=64), make_config("hover"))
+    meta = export_onnx(pt, d / "policy.onnx")
+    return pt, d / "policy.onnx", meta
+
+
+def test_lstm_exports_with_explicit_state(lstm_files):
+    _, path, meta = lstm_files
+    onnx.checker.check_model(onnx.load(str(path)), full_check=True)
+    s = session(path)
+    assert [(i.name, i.shape[1]) for i in s.get_inputs()] == [("obs", 18), ("h_in", 64), ("c_in", 64)]
+    assert [(o.name, o.shape[1]) for o in s.get_outputs()] == [("action", 4), ("h_out", 64), ("c_out", 64)]
+    assert json.loads(meta["quadpilot.architecture"])["kind"] == "lstm"
+    obs, z = np.zeros((5, 18), np.float32), np.zeros((5, 64), np.float32)
+    action, h, c = s.run(None, {"obs": obs, "h_in": z, "c_in": z})
+    assert action.shape == (5, 4) and h.shape == c.shape == (5, 64)
+    # the state carries memory: the same observation from a different state gives another command
+    action2, _, _ = s.run(None, {"obs": obs, "h_in": h, "c_in": c})
+    assert np.max(np.abs(action2 - action)) > 1e-4
+
+
+def test_lstm_parity_over_500_step_sequences_with_a_reset(lstm_files):
+    pt, path, _ = lstm_files
+    parity = check_parity(pt, path, n=2000)
+    assert parity["sequences"] == 4 and parity["observations"] == 2000
+    assert max(v for k, v in parity.items() if k not in ("observations", "sequences")) <= 1e-5, parity
+
+
+def test_lstm_parity_is_not_blind(lstm_files):
+    """The commands of the test LSTM span a real range, and the state reset matters."""
+    pt, _, _ = lstm_files
+    policy = load_policy(pt)
+    obs, starts = parity_sequences(policy, steps=100, sequences=3)
+    assert starts[0].all() and starts[50].all()
+    ref = reference_commands(policy, obs, starts)
+    assert ref.std() > 0.02
+    no_reset = starts.copy()
+    no_reset[50] = False
+    assert np.max(np.abs(reference_commands(policy, obs, no_reset)[50] - ref[50])) > 1e-3
+
+
+def test_normalised_mlp_parity(tmp_path):
+    """A run with observation normalisation: mean, 1/std and the ±clip travel in the graph, and
+    the NumPy backend reads them too."""
+    import torch
+
+    ckpt = load_checkpoint(MODELS / "hover" / "policy.pt")
+    ckpt["ppo_config"]["normalize_obs"] = True
+    rng = np.random.default_rng(0)
+    ckpt["obs_rms"]["mean"] = torch.as_tensor(rng.normal(0, 0.3, 18))
+    ckpt["obs_rms"]["var"] = torch.as_tensor(rng.uniform(0.05, 2.0, 18))
+    pt = tmp_path / "norm.pt"
+    torch.save(ckpt, pt)
+    export_onnx(pt, tmp_path / "norm.onnx")
+    info = read_model(tmp_path / "norm.onnx")[1]
+    assert info.architecture["normalize"]["clip"] == 10.0
+    parity = check_parity(pt, tmp_path / "norm.onnx", n=2000)
+    assert max(v for k, v in parity.items() if k != "observations") <= 1e-5, parity
+
+
+def test_cli_exports_an_lstm(lstm_files, tmp_path, capsys):
+    pt, _, _ = lstm_files
+    assert main([str(pt), "-o", str(tmp_path / "l.onnx"), "--parity-samples", "1000"]) == 0
+    text = capsys.readouterr().out
+    assert "2 sequences with a state reset half-way" in text and "runtime numpy" in text

@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         meta = export_onnx(args.checkpoint, out, args.opset)
-    except CheckpointError as e:
+    except (CheckpointError, OSError) as e:
         print(f"quad-export: error: {e}", file=sys.stderr)
         return 2
     print(
@@ -59,10 +59,14 @@ def main(argv: list[str] | None = None) -> int:
         f"{int(meta['quadpilot.training_steps']):,} training steps, opset {args.opset}); onnx.checker: ok"
     )
     parity = check_parity(args.checkpoint, out, args.parity_samples)
-    worst = max(v for k, v in parity.items() if k != "observations")
-    print(f"parity over {parity['observations']:,} observations (max abs difference in motor command):")
+    counts = ("observations", "sequences")
+    worst = max(v for k, v in parity.items() if k not in counts)
+    over = f"{parity['observations']:,} observations"
+    if "sequences" in parity:
+        over += f" in {parity['sequences']} sequences with a state reset half-way"
+    print(f"parity over {over} (max abs difference in motor command):")
     for k, v in parity.items():
-        if k != "observations":
+        if k not in counts:
             print(f"  {k.replace('_', ' '):32s} {v:.2e}")
     if worst > PARITY_TOLERANCE:
         print(f"quad-export: error: parity {worst:.2e} exceeds {PARITY_TOLERANCE:g}", file=sys.stderr)

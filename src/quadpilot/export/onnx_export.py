@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
@@ -42,12 +43,14 @@ ACTION_MEANING = (
 )
 
 
-class DeployablePolicy(nn.Module):
-    """Raw observations (B, obs_dim) float32 → motor commands (B, 4) float32 in [0, 1]."""
+_ACTIVATION_NAMES = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu"}
+
+
+class _Deployable(nn.Module):
+    """Shared pieces: observation normalisation in front, clipped action → motor command behind."""
 
     def __init__(self, policy: TrainedPolicy) -> None:
         super().__init__()
-        self.actor = policy.model.actor
         self.normalize = bool(policy.ppo_config.normalize_obs)
         rms = policy.obs_rms
         self.register_buffer("obs_mean", torch.as_tensor(rms.mean, dtype=torch.float32))
@@ -55,24 +58,114 @@ class DeployablePolicy(nn.Module):
         self.obs_clip = float(rms.clip)
         self.u_hover = float(policy.env_config.params.hover_command)
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        x = obs
-        if self.normalize:
-            x = torch.clamp((obs - self.obs_mean) * self.obs_inv_std, -self.obs_clip, self.obs_clip)
-        a = torch.clamp(self.actor(x), -1.0, 1.0)
+    def _normalized(self, obs: torch.Tensor) -> torch.Tensor:
+        if not self.normalize:
+            return obs
+        return torch.clamp((obs - self.obs_mean) * self.obs_inv_std, -self.obs_clip, self.obs_clip)
+
+    def _command(self, mean: torch.Tensor) -> torch.Tensor:
+        a = torch.clamp(mean, -1.0, 1.0)
         return torch.clamp(self.u_hover * torch.sqrt(1.0 + a), 0.0, 1.0)
 
+    def _spec(self) -> dict:
+        """The architecture metadata: what the NumPy backend computes, with initializer names."""
+        return {
+            "normalize": {"mean": "obs_mean", "inv_std": "obs_inv_std", "clip": self.obs_clip}
+            if self.normalize
+            else None,
+            "action_clip": [-1.0, 1.0],
+            "u_hover": self.u_hover,
+            "command_clip": [0.0, 1.0],
+        }
 
-def reference_commands(policy: TrainedPolicy, obs: np.ndarray) -> np.ndarray:
+
+class DeployablePolicy(_Deployable):
+    """Raw observations (B, obs_dim) float32 → motor commands (B, 4) float32 in [0, 1]."""
+
+    recurrent = False
+
+    def __init__(self, policy: TrainedPolicy) -> None:
+        super().__init__(policy)
+        self.actor = policy.model.actor
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self._command(self.actor(self._normalized(obs)))
+
+    def spec(self) -> dict:
+        layers, mods = [], list(self.actor.named_children())
+        for k, (name, mod) in enumerate(mods):
+            if isinstance(mod, nn.Linear):
+                nxt = mods[k + 1][1] if k + 1 < len(mods) else None
+                act = _ACTIVATION_NAMES.get(type(nxt)) if nxt is not None else None
+                layers.append({"weight": f"actor.{name}.weight", "bias": f"actor.{name}.bias", "activation": act})
+        return {"kind": "mlp", **self._spec(), "layers": layers}
+
+
+class DeployableRecurrentPolicy(_Deployable):
+    """One control step of the recurrent actor with explicit state:
+    (obs (B, obs_dim), h_in (B, H), c_in (B, H)) → (motor commands (B, 4), h_out, c_out).
+
+    The LSTM cell is written out from the trained `nn.LSTM`'s own weights (gate order i, f, g, o,
+    as torch documents for nn.LSTM) so that the graph is plain Gemm/Sigmoid/Tanh arithmetic any
+    runtime computes; the parity check compares it with the fused nn.LSTM used in training."""
+
+    recurrent = True
+
+    def __init__(self, policy: TrainedPolicy) -> None:
+        super().__init__(policy)
+        self.lstm = policy.model.actor_lstm
+        self.head = policy.model.actor_head
+        self.hidden = policy.model.hidden
+
+    def forward(self, obs: torch.Tensor, h_in: torch.Tensor, c_in: torch.Tensor):
+        x = self._normalized(obs)
+        lstm = self.lstm
+        gates = F.linear(x, lstm.weight_ih_l0, lstm.bias_ih_l0) + F.linear(h_in, lstm.weight_hh_l0, lstm.bias_hh_l0)
+        i, f, g, o = gates.chunk(4, dim=-1)
+        c_out = torch.sigmoid(f) * c_in + torch.sigmoid(i) * torch.tanh(g)
+        h_out = torch.sigmoid(o) * torch.tanh(c_out)
+        return self._command(self.head(h_out)), h_out, c_out
+
+    def spec(self) -> dict:
+        names = {k: f"lstm.{k}_l0" for k in ("weight_ih", "weight_hh", "bias_ih", "bias_hh")}
+        head = [{"weight": "head.weight", "bias": "head.bias", "activation": None}]
+        return {"kind": "lstm", "hidden": self.hidden, **self._spec(), "lstm": names, "layers": head}
+
+
+def deployable(policy: TrainedPolicy) -> DeployablePolicy | DeployableRecurrentPolicy:
+    return (DeployableRecurrentPolicy if policy.recurrent else DeployablePolicy)(policy).eval()
+
+
+def reference_commands(policy: TrainedPolicy, obs: np.ndarray, starts: np.ndarray | None = None) -> np.ndarray:
     """The training-side path, for parity: the trainer's deterministic action, then `core`'s
-    action-to-command map (float64)."""
-    return action_to_command(policy(obs).astype(np.float64), policy.env_config.params.hover_command)
+    action-to-command map (float64). MLP: obs (N, obs_dim) → (N, 4). Recurrent: obs (T, B, obs_dim)
+    with episode starts (T, B), run through the training class's fused nn.LSTM → (T, B, 4)."""
+    u_hover = policy.env_config.params.hover_command
+    if not policy.recurrent:
+        return action_to_command(policy(obs).astype(np.float64), u_hover)
+    t, b, d = obs.shape
+    with torch.inference_mode():
+        x = policy._input(obs.reshape(t * b, d)).reshape(t, b, d)
+        mean, _ = policy.model.actor_sequence(x, policy.initial_state(b), torch.from_numpy(starts))
+    return action_to_command(mean.clamp(-1.0, 1.0).numpy().astype(np.float64), u_hover)
+
+
+def _edge_observations(cfg, k: int, rng: np.random.Generator) -> np.ndarray:
+    """(k, obs_dim): positions up to the 5 m flight-area limit, ±5 m/s, any attitude, ±10 rad/s."""
+    state = np.zeros((k, 12))
+    state[:, 0:3] = rng.uniform(-5.0, 5.0, (k, 3))
+    state[:, 3:6] = rng.uniform(-5.0, 5.0, (k, 3))
+    state[:, 6] = rng.uniform(-np.pi, np.pi, k)
+    state[:, 7] = rng.uniform(-np.pi / 2 + 0.01, np.pi / 2 - 0.01, k)
+    state[:, 8] = rng.uniform(-np.pi, np.pi, k)
+    state[:, 9:12] = rng.uniform(-10.0, 10.0, (k, 3))
+    target_vel = rng.uniform(-2.0, 2.0, (k, 3)) if cfg.layout.dim == 21 else None
+    return build_observation(state, np.zeros(3), target_vel)
 
 
 def parity_observations(policy: TrainedPolicy, n: int = 10_000, seed: int = 0) -> np.ndarray:
     """(n, obs_dim) float32: half from closed-loop rollouts of the policy itself from the training
-    start distribution (what it sees in flight), half from the edges of the training range
-    (positions up to the 5 m flight-area limit, ±5 m/s, any attitude, ±10 rad/s)."""
+    start distribution (what it sees in flight), half from the edges of the training range."""
     rng = np.random.default_rng(seed)
     cfg = policy.env_config
     n_roll = n // 2
@@ -85,17 +178,64 @@ def parity_observations(policy: TrainedPolicy, n: int = 10_000, seed: int = 0) -
         _, _, term, trunc, _ = batch.step(policy(batch.obs.copy()))
         batch.reset(term | trunc, rng)
     rollout = np.concatenate(seen)[:n_roll]
-    k = n - n_roll
-    state = np.zeros((k, 12))
-    state[:, 0:3] = rng.uniform(-5.0, 5.0, (k, 3))
-    state[:, 3:6] = rng.uniform(-5.0, 5.0, (k, 3))
-    state[:, 6] = rng.uniform(-np.pi, np.pi, k)
-    state[:, 7] = rng.uniform(-np.pi / 2 + 0.01, np.pi / 2 - 0.01, k)
-    state[:, 8] = rng.uniform(-np.pi, np.pi, k)
-    state[:, 9:12] = rng.uniform(-10.0, 10.0, (k, 3))
-    target_vel = rng.uniform(-2.0, 2.0, (k, 3)) if cfg.layout.dim == 21 else None
-    edges = build_observation(state, np.zeros(3), target_vel)
+    edges = _edge_observations(cfg, n - n_roll, rng)
     return np.concatenate([rollout, edges]).astype(np.float32)
+
+
+def parity_sequences(
+    policy: TrainedPolicy, steps: int = 500, sequences: int = 20, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """For a recurrent policy: obs (steps, sequences, obs_dim) float32 and episode starts
+    (steps, sequences) bool. The first half is the policy's own closed-loop flight (episodes
+    that end restart, and their state resets); at the half-way step every state is reset and
+    the second half is observations from the edges of the training range."""
+    rng = np.random.default_rng(seed)
+    cfg = policy.env_config
+    batch = QuadBatch(cfg, sequences)
+    batch.reset(np.ones(sequences, bool), rng)
+    state = policy.initial_state(sequences)
+    obs = np.zeros((steps, sequences, policy.layout.dim), np.float32)
+    starts = np.zeros((steps, sequences), bool)
+    starts[0] = True
+    half = steps // 2
+    for t in range(half):
+        obs[t] = batch.obs
+        action, state = policy.step(batch.obs.copy(), state)
+        _, _, term, trunc, _ = batch.step(action)
+        done = term | trunc
+        batch.reset(done, rng)
+        if t + 1 < steps:
+            starts[t + 1] |= done
+        keep = torch.from_numpy(~done).float().unsqueeze(-1)
+        state = (state[0] * keep, state[1] * keep)
+    if half < steps:
+        starts[half] = True
+        obs[half:] = _edge_observations(cfg, (steps - half) * sequences, rng).reshape(steps - half, sequences, -1)
+    return obs, starts
+
+
+def _step_sequences(step, obs: np.ndarray, starts: np.ndarray, hidden: int) -> np.ndarray:
+    """Run a batched recurrent step function (obs, h, c) → (action, h, c) over (T, B, D)."""
+    t_len, b, _ = obs.shape
+    h = np.zeros((b, hidden), np.float32)
+    c = np.zeros((b, hidden), np.float32)
+    out = np.zeros((t_len, b, 4), np.float32)
+    for t in range(t_len):
+        keep = (~starts[t]).astype(np.float32)[:, None]
+        out[t], h, c = step(obs[t], h * keep, c * keep)
+    return out
+
+
+def _runtime_sequences(runtime_policy, obs: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """The runtime's batch-1 policy over (T, B, D), one sequence at a time, reset at starts."""
+    t_len, b, _ = obs.shape
+    out = np.zeros((t_len, b, 4), np.float32)
+    for j in range(b):
+        for t in range(t_len):
+            if starts[t, j]:
+                runtime_policy.reset()
+            out[t, j] = runtime_policy.act(obs[t, j])
+    return out
 
 
 def sha256_of(path: str | os.PathLike) -> str:
@@ -104,6 +244,52 @@ def sha256_of(path: str | os.PathLike) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def _golden(policy: TrainedPolicy, module) -> tuple[np.ndarray, np.ndarray]:
+    """A short sequence of (obs → motor command) from zero recurrent state, stored in the file."""
+    if not module.recurrent:
+        obs = parity_observations(policy, n=8, seed=1)
+        with torch.inference_mode():
+            return obs, module(torch.from_numpy(obs)).numpy()
+    obs, _ = parity_sequences(policy, steps=8, sequences=1, seed=1)
+    starts = np.zeros(obs.shape[:2], bool)
+    starts[0] = True
+    with torch.inference_mode():
+        act = _step_sequences(
+            lambda o, h, c: tuple(v.numpy() for v in module(*map(torch.from_numpy, (o, h, c)))),
+            obs,
+            starts,
+            module.hidden,
+        )
+    return obs[:, 0], act[:, 0]
+
+
+def _resolve_weight_names(spec: dict, module: nn.Module, initializers: set[str]) -> dict:
+    """The architecture spec names each weight by its initializer in the graph. The exporter's
+    optimiser drops an all-zero bias (adding zeros is a no-op; an untrained head has one): such an
+    entry becomes None, which readers take as zeros. Any other missing name is an exporter change
+    the runtime must not guess about."""
+    params = dict(module.named_parameters()) | dict(module.named_buffers())
+
+    def resolve(name: str) -> str | None:
+        if name in initializers:
+            return name
+        if name in params and not bool(params[name].detach().abs().max() > 0):
+            return None
+        raise RuntimeError(
+            f"the ONNX exporter renamed {name!r}, which the runtime reads by name; found {sorted(initializers)}"
+        )
+
+    spec = json.loads(json.dumps(spec))
+    for layer in spec["layers"]:
+        layer["weight"], layer["bias"] = resolve(layer["weight"]), resolve(layer["bias"])
+    if spec.get("lstm"):
+        spec["lstm"] = {k: resolve(v) for k, v in spec["lstm"].items()}
+    if spec["normalize"]:
+        for k in ("mean", "inv_std"):
+            spec["normalize"][k] = resolve(spec["normalize"][k])
+    return spec
 
 
 def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: int = DEFAULT_OPSET) -> dict:
@@ -115,27 +301,35 @@ def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: in
     checkpoint, out = Path(checkpoint), Path(out)
     ckpt = load_checkpoint(checkpoint)
     policy = TrainedPolicy(ckpt, str(checkpoint))
-    module = DeployablePolicy(policy).eval()
+    module = deployable(policy)
     dim = policy.layout.dim
-    example = torch.zeros(2, dim)
+    batch = torch.export.Dim("batch")
+    if module.recurrent:
+        h = module.hidden
+        example = (torch.zeros(2, dim), torch.zeros(2, h), torch.zeros(2, h))
+        names_in, names_out = [INPUT, "h_in", "c_in"], [OUTPUT, "h_out", "c_out"]
+        dynamic = ({0: batch}, {0: batch}, {0: batch})
+    else:
+        example = (torch.zeros(2, dim),)
+        names_in, names_out = [INPUT], [OUTPUT]
+        dynamic = ({0: batch},)
     # the exporter logs that torchvision (which we do not use) is missing; keep the CLI output ours
     logging.getLogger("torch.onnx._internal.exporter._registration").setLevel(logging.ERROR)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the exporter's progress chatter
         program = torch.onnx.export(
             module,
-            (example,),
+            example,
             dynamo=True,
-            input_names=[INPUT],
-            output_names=[OUTPUT],
-            dynamic_shapes=({0: torch.export.Dim("batch")},),
+            input_names=names_in,
+            output_names=names_out,
+            dynamic_shapes=dynamic,
             opset_version=opset,
             verbose=False,
         )
     model = program.model_proto
-    golden_obs = parity_observations(policy, n=8, seed=1)
-    with torch.inference_mode():
-        golden_act = module(torch.from_numpy(golden_obs)).numpy()
+    spec = _resolve_weight_names(module.spec(), module, {t.name for t in model.graph.initializer})
+    golden_obs, golden_act = _golden(policy, module)
     cfg = policy.env_config
     meta = {
         "quadpilot.schema": ONNX_SCHEMA,
@@ -147,6 +341,10 @@ def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: in
         "quadpilot.training_steps": str(policy.global_step),
         "quadpilot.source_sha256": sha256_of(checkpoint),
         "quadpilot.golden": json.dumps({"obs": golden_obs.tolist(), "action": golden_act.tolist()}),
+        "quadpilot.architecture": json.dumps(spec),
+        "quadpilot.envelope": json.dumps(
+            {"max_distance_m": cfg.reward.max_distance, "max_tilt_deg": cfg.reward.max_tilt_deg}
+        ),
     }
     del model.metadata_props[:]
     for k, v in meta.items():
@@ -160,22 +358,48 @@ def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: in
 
 
 def check_parity(checkpoint: str | os.PathLike, onnx_path: str | os.PathLike, n: int = 10_000) -> dict:
-    """Max abs difference of the motor commands between the exported torch module, ONNX Runtime
-    and the training-side path (TrainedPolicy + core.action_to_command) on `n` observations."""
+    """Max abs difference of the motor commands between the exported torch module and, on the
+    same inputs: a batched ONNX Runtime session, the runtime's two batch-1 backends (which also
+    check the file's contract and golden vectors on load), and the training-side path (the
+    trainer's network + core.action_to_command). MLP: `n` observations from rollouts and range
+    edges. LSTM: n/500 sequences of 500 steps with a state reset half-way (`parity_sequences`)."""
     import onnxruntime as ort
 
+    from quadpilot.runtime.backends import load_policy as load_runtime_policy
+
     policy = TrainedPolicy(load_checkpoint(checkpoint), str(checkpoint))
-    obs = parity_observations(policy, n)
-    with torch.inference_mode():
-        torch_out = DeployablePolicy(policy).eval()(torch.from_numpy(obs)).numpy()
+    module = deployable(policy)
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
     session = ort.InferenceSession(str(onnx_path), opts, providers=["CPUExecutionProvider"])
-    ort_out = session.run([OUTPUT], {INPUT: obs})[0]
-    ref = reference_commands(policy, obs)
-    return {
-        "observations": int(obs.shape[0]),
-        "torch_vs_onnxruntime": float(np.max(np.abs(torch_out - ort_out))),
-        "training_path_vs_onnxruntime": float(np.max(np.abs(ref - ort_out))),
-        "training_path_vs_torch": float(np.max(np.abs(ref - torch_out))),
-    }
+    backends = {b: load_runtime_policy(onnx_path, b) for b in ("onnxruntime", "numpy")}
+    if not module.recurrent:
+        obs = parity_observations(policy, n)
+        with torch.inference_mode():
+            torch_out = module(torch.from_numpy(obs)).numpy()
+        outs = {"onnxruntime_session": session.run([OUTPUT], {INPUT: obs})[0]}
+        for name, p in backends.items():
+            outs[f"runtime_{name}"] = np.stack([p.act(o) for o in obs])
+        ref = reference_commands(policy, obs)
+        count = {"observations": int(obs.shape[0])}
+    else:
+        obs, starts = parity_sequences(policy, sequences=max(1, n // 500))
+        h = module.hidden
+
+        def torch_step(o, hh, cc):
+            with torch.inference_mode():
+                return tuple(v.numpy() for v in module(*map(torch.from_numpy, (o, hh, cc))))
+
+        def ort_step(o, hh, cc):
+            return tuple(session.run(None, {INPUT: o, "h_in": hh, "c_in": cc}))
+
+        torch_out = _step_sequences(torch_step, obs, starts, h)
+        outs = {"onnxruntime_session": _step_sequences(ort_step, obs, starts, h)}
+        for name, p in backends.items():
+            outs[f"runtime_{name}"] = _runtime_sequences(p, obs, starts)
+        ref = reference_commands(policy, obs, starts)
+        count = {"observations": int(obs.shape[0] * obs.shape[1]), "sequences": int(obs.shape[1])}
+    result = {**count, "training_path_vs_torch": float(np.max(np.abs(ref - torch_out)))}
+    for name, out in outs.items():
+        result[f"torch_vs_{name}"] = float(np.max(np.abs(torch_out - out)))
+    return result

@@ -1,1 +1,29 @@
-"""Torch-free runtime: policy backends, safety monitor, fallback controller, MAVLink node."""
+"""Torch-free runtime: policy backends, safety monitor, fallback controller, MAVLink node.
+
+    from quadpilot.runtime import load_policy, SafetyMonitor
+    monitor = SafetyMonitor(load_policy("models/hover/policy.onnx", backend="numpy"))
+    motors = monitor.act(obs)   # (4,) float32 in [0, 1], PX4 quad-X order
+
+Imports numpy, onnx (to read the file) and onnxruntime only: never torch or gymnasium.
+"""
+
+from .backends import BACKENDS, NumpyPolicy, ObservationShapeError, OnnxRuntimePolicy, Policy, load_policy
+from .fallback import FallbackController, FallbackGains
+from .model import ModelContractError, ModelInfo, read_model
+from .safety import ObservationLimits, SafetyMonitor
+
+__all__ = [
+    "BACKENDS",
+    "FallbackController",
+    "FallbackGains",
+    "ModelContractError",
+    "ModelInfo",
+    "NumpyPolicy",
+    "ObservationLimits",
+    "ObservationShapeError",
+    "OnnxRuntimePolicy",
+    "Policy",
+    "SafetyMonitor",
+    "load_policy",
+    "read_model",
+]

@@ -197,6 +197,52 @@ def checkpoint_dict(ppo: PPO, extra: dict | None = None) -> dict:
     )
 
 
+def policy_checkpoint_dict(
+    model: torch.nn.Module, ppo_cfg: PPOConfig, env_cfg: EnvConfig, global_step: int = 0
+) -> dict:
+    """A deployable policy file (policy.pt format, identity normaliser) for a network that PPO did
+    not train, e.g. a freshly built `RecurrentActorCritic` to test export and runtime on. It has
+    no optimizer, trainer or environment state, so it exports and flies but cannot be resumed."""
+    from quadpilot.core.normalize import RunningMeanStd
+
+    rms = RunningMeanStd((env_cfg.layout.dim,))
+    return plain(
+        {
+            "schema": SCHEMA,
+            "created_unix": time.time(),
+            "ppo_config": ppo_cfg.to_json(),
+            "env_config": env_cfg.to_json(),
+            "obs_layout": env_cfg.layout.to_json(),
+            "model": {k: v.detach().clone() for k, v in model.state_dict().items()},
+            "optimizer": {},
+            "obs_rms": rms.state_dict(),
+            "global_step": int(global_step),
+            "updates": 0,
+            "trainer": {},
+            "env": {},
+            "rng": {},
+            "extra": {"note": "not trained by PPO: built to test export and runtime"},
+        }
+    )
+
+
+def save_untrained_policy(
+    path: str | os.PathLike, ppo_cfg: PPOConfig, env_cfg: EnvConfig, seed: int = 0, head_gain: float = 1.0
+) -> Path:
+    """Write a policy file for a freshly initialised network of `ppo_cfg.arch`, its action head
+    re-initialised with `head_gain` (the training init, 0.01, makes every action ≈ 0, which would
+    make a parity test blind). For testing and benchmarking export and runtime on architectures
+    PPO does not train yet (the LSTM)."""
+    from .networks import build_actor_critic
+
+    torch.manual_seed(seed)
+    model = build_actor_critic(env_cfg.layout.dim, 4, ppo_cfg)
+    head = model.actor_head if getattr(model, "recurrent", False) else model.actor[-1]
+    torch.nn.init.orthogonal_(head.weight, head_gain)
+    data = policy_checkpoint_dict(model, ppo_cfg, env_cfg)
+    return atomic_write(path, lambda f: torch.save(data, f))
+
+
 def ppo_from_checkpoint(ckpt: dict, cfg: PPOConfig | None = None, source: str = "checkpoint") -> PPO:
     """A PPO trainer rebuilt from a loaded checkpoint, ready to continue. `cfg` may replace the
     stored PPOConfig (e.g. a longer total_steps); the network and batch shapes must still fit."""
@@ -321,7 +367,7 @@ class TrainedPolicy:
         from quadpilot.core.normalize import RunningMeanStd
         from quadpilot.core.observation import get_layout
 
-        from .networks import ActorCritic
+        from .networks import build_actor_critic
 
         self.source = source
         self.ppo_config = PPOConfig.from_json(ckpt["ppo_config"])
@@ -336,9 +382,10 @@ class TrainedPolicy:
                 f"environment, which uses {self.env_config.layout.name!r}"
             )
         c = self.ppo_config
-        self.model = ActorCritic(
-            self.layout.dim, 4, c.actor_hidden, c.critic_hidden, c.activation, c.init_log_std
-        ).eval()
+        try:
+            self.model = build_actor_critic(self.layout.dim, 4, c).eval()
+        except ValueError as e:
+            raise CheckpointError(f"{source}: {e}") from None
         try:
             self.model.load_state_dict(ckpt["model"])
         except (RuntimeError, KeyError) as e:
@@ -348,13 +395,32 @@ class TrainedPolicy:
         self.global_step = int(ckpt["global_step"])
         self.extra = ckpt.get("extra", {})
 
-    @torch.inference_mode()
-    def __call__(self, raw_obs: np.ndarray) -> np.ndarray:
+    @property
+    def recurrent(self) -> bool:
+        return bool(getattr(self.model, "recurrent", False))
+
+    def _input(self, raw_obs: np.ndarray) -> torch.Tensor:
         raw_obs = np.asarray(raw_obs, np.float32)
         if raw_obs.ndim != 2 or raw_obs.shape[1] != self.layout.dim:
             raise ValueError(f"observations must have shape (N, {self.layout.dim}), got {raw_obs.shape}")
         x = self.obs_rms.normalize(raw_obs) if self.ppo_config.normalize_obs else raw_obs
-        return self.model.mean_action(torch.from_numpy(x)).numpy()
+        return torch.from_numpy(np.ascontiguousarray(x, np.float32))
+
+    @torch.inference_mode()
+    def __call__(self, raw_obs: np.ndarray) -> np.ndarray:
+        if self.recurrent:
+            raise TypeError(f"{self.source} is a recurrent policy: use initial_state() and step()")
+        return self.model.mean_action(self._input(raw_obs)).numpy()
+
+    def initial_state(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Zero recurrent state for n drones (recurrent policies only)."""
+        return self.model.initial_state(n)
+
+    @torch.inference_mode()
+    def step(self, raw_obs: np.ndarray, state: tuple[torch.Tensor, torch.Tensor]):
+        """One step of a recurrent policy: (N, obs_dim) → actions (N, 4) in [−1, 1], new state."""
+        action, state = self.model.mean_action_step(self._input(raw_obs), state)
+        return action.numpy(), state
 
 
 def load_policy(path: str | os.PathLike) -> TrainedPolicy:

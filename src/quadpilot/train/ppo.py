@@ -28,7 +28,7 @@ from quadpilot.core.normalize import RunningMeanStd
 
 from .envs import EnvConfig, QuadVectorEnv
 from .gae import compute_gae
-from .networks import ActorCritic
+from .networks import ActorCritic, build_actor_critic
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,12 @@ class PPOConfig:
     """Global gradient-norm clip."""
     target_kl: float | None = None
     """Stop the epochs of an update early once approx_kl exceeds this (None: never)."""
+    arch: str = "mlp"
+    """Network: mlp (feed-forward actor and critic), or lstm (`RecurrentActorCritic`, one LSTM layer
+    of lstm_hidden units and a linear head each; it exports and flies, its PPO training is not
+    written yet)."""
+    lstm_hidden: int = 64
+    """LSTM width when arch is lstm."""
     actor_hidden: tuple[int, ...] = (64, 64)
     """Actor hidden layer widths."""
     critic_hidden: tuple[int, ...] = (64, 64)
@@ -150,7 +156,9 @@ class PPO:
         obs_dim = env_cfg.layout.dim
         self.torch_gen = torch.Generator().manual_seed(cfg.seed)
         torch.manual_seed(cfg.seed)  # parameter initialisation draws from the default generator
-        self.model = ActorCritic(obs_dim, 4, cfg.actor_hidden, cfg.critic_hidden, cfg.activation, cfg.init_log_std)
+        if cfg.arch != "mlp":
+            raise ValueError(f"PPO trains arch='mlp' only so far; arch={cfg.arch!r} has no recurrent PPO update yet")
+        self.model: ActorCritic = build_actor_critic(obs_dim, 4, cfg)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, eps=1e-5)
         self.obs_rms = RunningMeanStd((obs_dim,))
         self.global_step = 0

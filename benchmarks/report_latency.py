@@ -1,0 +1,88 @@
+"""Markdown table of batch-1 policy latency from one run of benchmarks/test_policy_latency.py.
+
+    .venv/bin/python benchmarks/report_latency.py docs/bench/policy_latency.json
+
+Prints p50 and p99 per case (µs, from the per-call round times), each case's speed-up over torch
+eager on the same network in the same run (ratio of p50), and whether the export issue's targets
+are met: MLP p50 ≤ 8 µs and p99 ≤ 20 µs on the faster monitored backend (validation included) and
+≥ 5× faster than torch eager; LSTM monitored step p50 ≤ 25 µs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+from pathlib import Path
+
+MLP_P50, MLP_P99, MLP_SPEEDUP, LSTM_P50 = 8.0, 20.0, 5.0, 25.0
+ORDER = ("monitored_numpy", "monitored_onnxruntime", "bare_numpy", "bare_onnxruntime", "session_run", "torch_eager")
+LABEL = {
+    "monitored_numpy": "NumPy backend + safety monitor",
+    "monitored_onnxruntime": "ONNX Runtime backend (I/O binding) + safety monitor",
+    "bare_numpy": "NumPy backend alone",
+    "bare_onnxruntime": "ONNX Runtime backend alone",
+    "session_run": "plain `InferenceSession.run`",
+    "torch_eager": "torch eager, inference_mode (baseline)",
+}
+
+
+def load(path: Path) -> tuple[dict, dict]:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise SystemExit(f"cannot read pytest-benchmark JSON {path}: {e}") from None
+    res: dict[tuple[str, str], dict] = {}
+    for b in data.get("benchmarks", []):
+        info = b.get("extra_info", {})
+        if "p50_us" in info and "case" in info:
+            res[(info["net"], info["case"])] = info
+    if not res:
+        raise SystemExit(f"{path} holds no result of test_policy_latency.py run with --benchmark-enable")
+    return res, data.get("machine_info", {})
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("json", type=Path, help="file written by pytest --benchmark-json")
+    args = ap.parse_args(argv)
+    res, machine = load(args.json)
+    cpu = machine.get("cpu", {}).get("brand_raw", platform.processor() or "?")
+    print(f"Machine: {cpu}, {machine.get('cpu', {}).get('count', '?')} cores; Python {machine.get('python_version')}.")
+    print()
+    print("| network | case | p50 (µs) | p99 (µs) | torch eager p50 ÷ this p50 |")
+    print("|---|---|---:|---:|---:|")
+    for net in ("mlp", "lstm"):
+        base = res.get((net, "torch_eager"), {}).get("p50_us")
+        for case in ORDER:
+            r = res.get((net, case))
+            if r is None:
+                continue
+            ratio = "–" if base is None else f"{base / r['p50_us']:.1f}×"
+            print(f"| {net} | {LABEL[case]} | {r['p50_us']:.2f} | {r['p99_us']:.2f} | {ratio} |")
+    print()
+    monitored = [res[("mlp", c)] for c in ("monitored_numpy", "monitored_onnxruntime") if ("mlp", c) in res]
+    if monitored:
+        best = min(monitored, key=lambda r: r["p50_us"])
+        base = res.get(("mlp", "torch_eager"), {}).get("p50_us")
+        checks = [
+            (f"MLP p50 ≤ {MLP_P50:g} µs ({best['case']})", best["p50_us"] <= MLP_P50, f"{best['p50_us']:.2f} µs"),
+            (f"MLP p99 ≤ {MLP_P99:g} µs ({best['case']})", best["p99_us"] <= MLP_P99, f"{best['p99_us']:.2f} µs"),
+        ]
+        if base is not None:
+            speedup = base / best["p50_us"]
+            checks.append((f"MLP ≥ {MLP_SPEEDUP:g}× torch eager", speedup >= MLP_SPEEDUP, f"{speedup:.1f}×"))
+        lstm = [res[("lstm", c)] for c in ("monitored_numpy", "monitored_onnxruntime") if ("lstm", c) in res]
+        if lstm:
+            lb = min(lstm, key=lambda r: r["p50_us"])
+            checks.append(
+                (f"LSTM step p50 ≤ {LSTM_P50:g} µs ({lb['case']})", lb["p50_us"] <= LSTM_P50, f"{lb['p50_us']:.2f} µs")
+            )
+        for label, ok, value in checks:
+            print(f"- Target {label}: {'met' if ok else 'NOT met'} ({value})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,324 @@
+"""Two interchangeable policy backends for one exported file, both batch-1 and torch-free.
+
+    policy = load_policy("models/hover/policy.onnx", backend="numpy")   # or "onnxruntime"
+    policy.reset()                       # clears recurrent state (no-op for an MLP)
+    motors = policy.act(obs)             # (obs_dim,) float32 → (4,) float32 in [0, 1]
+
+`OnnxRuntimePolicy` runs the graph in an ONNX Runtime session created once, single-threaded, with
+its inputs and outputs bound to preallocated buffers (I/O binding saves the per-call conversion
+of `session.run`). `NumpyPolicy` reads the weights from the same file (the initializers named in
+the file's architecture metadata) and computes the same network with NumPy. Neither knows about
+safety: wrap them in `safety.SafetyMonitor`.
+
+`load_policy` checks the file's contract (`model.read_model`) and then replays the golden vectors
+stored in it; a backend that does not reproduce them within `GOLDEN_TOLERANCE` is refused.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .model import NUM_MOTORS, ModelContractError, ModelInfo, read_model
+
+BACKENDS = ("onnxruntime", "numpy")
+GOLDEN_TOLERANCE = 1e-5
+"""Max abs difference in motor command allowed on the golden vectors (the export parity bar)."""
+
+
+class ObservationShapeError(ValueError):
+    """An observation of the wrong size reached a policy."""
+
+
+class Policy:
+    """Batch-1 policy over raw observations. Subclasses implement `_act(x)` on a float32 (obs_dim,)."""
+
+    backend = "?"
+
+    def __init__(self, info: ModelInfo) -> None:
+        self.info = info
+        self.obs_dim = info.obs_dim
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Motor commands (4,) float32 for one observation (obs_dim,) or (1, obs_dim)."""
+        if type(obs) is not np.ndarray:
+            obs = np.asarray(obs, np.float32)
+        if obs.size != self.obs_dim:
+            raise ObservationShapeError(
+                f"observation has shape {obs.shape}; this policy ({self.info.layout.name}) expects "
+                f"({self.obs_dim},) float32"
+            )
+        return self._act(obs.reshape(self.obs_dim))
+
+    def _act(self, x: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Start of an episode: zero the recurrent state."""
+
+    def verify_golden(self) -> float:
+        """Replay the file's golden sequence from zero state; returns the max abs difference."""
+        self.reset()
+        worst = 0.0
+        for obs, want in zip(self.info.golden_obs, self.info.golden_action, strict=True):
+            got = self.act(obs)
+            diff = float(np.max(np.abs(got - want)))
+            worst = diff if not diff <= worst else worst  # NaN sticks
+        self.reset()
+        return worst
+
+
+class OnnxRuntimePolicy(Policy):
+    backend = "onnxruntime"
+
+    def __init__(self, info: ModelInfo, model_bytes: bytes) -> None:
+        import onnxruntime as ort
+
+        super().__init__(info)
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1  # batch-1 control: threads only add wake-up latency
+        opts.inter_op_num_threads = 1
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        opts.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(model_bytes, opts, providers=["CPUExecutionProvider"])
+        except Exception as e:  # ORT raises its own exception types from C++ (Fail, InvalidGraph, ...)
+            raise ModelContractError(f"{info.path}: ONNX Runtime cannot load the model ({e})") from None
+        h = max(info.hidden, 1)
+        self._obs = np.zeros((1, self.obs_dim), np.float32)
+        self._out = np.zeros((1, NUM_MOTORS), np.float32)
+        self._binding = b = self.session.io_binding()
+        b.bind_cpu_input("obs", self._obs)
+        b.bind_output("action", "cpu", 0, np.float32, list(self._out.shape), self._out.ctypes.data)
+        if info.recurrent:
+            self._h, self._c = np.zeros((1, h), np.float32), np.zeros((1, h), np.float32)
+            self._h_out, self._c_out = np.zeros_like(self._h), np.zeros_like(self._c)
+            b.bind_cpu_input("h_in", self._h)
+            b.bind_cpu_input("c_in", self._c)
+            for name, buf in (("h_out", self._h_out), ("c_out", self._c_out)):
+                b.bind_output(name, "cpu", 0, np.float32, list(buf.shape), buf.ctypes.data)
+        self._run = self.session.run_with_iobinding
+
+    def _act(self, x: np.ndarray) -> np.ndarray:
+        self._obs[0] = x
+        self._run(self._binding)
+        if self.info.recurrent:
+            self._h[...] = self._h_out
+            self._c[...] = self._c_out
+        return self._out[0].copy()
+
+    def reset(self) -> None:
+        if self.info.recurrent:
+            self._h.fill(0.0)
+            self._c.fill(0.0)
+
+
+def _activation(name: str | None):
+    """In-place activation on a float32 vector."""
+    if name is None:
+        return None
+    if name == "tanh":
+        return lambda v: np.tanh(v, out=v)
+    if name == "relu":
+        return lambda v: np.maximum(v, 0.0, out=v)
+    if name == "elu":
+
+        def elu(v):
+            neg = np.expm1(np.minimum(v, 0.0))
+            np.maximum(v, 0.0, out=v)
+            v += neg
+
+        return elu
+    raise ModelContractError(f"activation {name!r} is not one the NumPy backend computes (tanh, relu, elu)")
+
+
+class NumpyPolicy(Policy):
+    """The network of the file computed with NumPy, batch-1, with preallocated buffers.
+
+    The map from the action head's output a to the motor command, u_hover·√(1 + clip(a, −1, 1)),
+    is folded into the head's weights and bias as √(clip(u²·(a + 1), 0, 2u²)): the same function,
+    three vector operations instead of five (rounding differs by ~1e-7, checked by the golden
+    vectors and the export parity test).
+
+    Each dense layer y = W·x + b is one `np.dot` with the bias folded in: the input vector
+    carries a trailing 1 and the matrix is [Wᵀ; b]. The LSTM step (torch gate order i, f, g, o)
+    is one `np.dot` of [x, h, 1] with [W_ihᵀ; W_hhᵀ; b_ih + b_hh], columns reordered to
+    (i, f, o, g) so that one tanh serves all four gates: σ(z) = ½·tanh(z/2) + ½, with the halving
+    folded into the i, f, o columns (a power of two, so exact)."""
+
+    backend = "numpy"
+
+    def __init__(self, info: ModelInfo, weights: dict[str, np.ndarray]) -> None:
+        super().__init__(info)
+        arch = info.architecture
+
+        def w(name: str | None, shape: tuple[int, ...] | None = None) -> np.ndarray:
+            if name is None and shape is not None:  # the exporter dropped an all-zero tensor
+                return np.zeros(shape)
+            if name not in weights:
+                raise ModelContractError(f"{info.path}: architecture names weight {name!r}, which the graph lacks")
+            return np.asarray(weights[name], np.float64)
+
+        try:
+            norm = arch.get("normalize")
+            self._norm = None
+            if norm:
+                self._norm = (
+                    w(norm["mean"]).astype(np.float32),
+                    w(norm["inv_std"]).astype(np.float32),
+                    float(norm["clip"]),
+                )
+            self._u_hover = float(arch["u_hover"])
+            self._a_lo, self._a_hi = (float(v) for v in arch["action_clip"])
+            self._c_lo, self._c_hi = (float(v) for v in arch["command_clip"])
+            layers = arch["layers"]
+            d = self.obs_dim
+            if info.recurrent:
+                spec, hsz = arch["lstm"], info.hidden
+                w_ih, w_hh = w(spec["weight_ih"]), w(spec["weight_hh"])
+                bias = w(spec["bias_ih"], (4 * hsz,)) + w(spec["bias_hh"], (4 * hsz,))
+                if w_ih.shape != (4 * hsz, d) or w_hh.shape != (4 * hsz, hsz):
+                    raise ModelContractError(
+                        f"{info.path}: LSTM weights {w_ih.shape}, {w_hh.shape} do not fit hidden {hsz}"
+                    )
+                a = np.vstack([w_ih.T, w_hh.T, bias[None, :]])  # (d + H + 1, 4H), gates i, f, g, o
+                i, f, g, o = (a[:, k * hsz : (k + 1) * hsz] for k in range(4))
+                self._A_lstm = np.ascontiguousarray(np.hstack([0.5 * i, 0.5 * f, 0.5 * o, g]), np.float32)
+                self._z = np.zeros(d + hsz + 1, np.float32)  # [x, h, 1]
+                self._z[-1] = 1.0
+                self._gates = np.zeros(4 * hsz, np.float32)
+                self._c = np.zeros(hsz, np.float32)
+                self._tmp = np.zeros(hsz, np.float32)
+                self._x = self._z[:d]
+                self._h_view = self._z[d : d + hsz]
+                self._hidden = hsz
+                prev = np.zeros(hsz + 1, np.float32)  # [h, 1] feeds the head
+                prev[-1] = 1.0
+                self._h_aug = prev
+                d = hsz
+            else:
+                prev = np.zeros(d + 1, np.float32)
+                prev[-1] = 1.0
+                self._x = prev[:d]
+            self._first = prev
+            self._dense = []
+            for k, layer in enumerate(layers):
+                wt = w(layer["weight"])
+                b = w(layer["bias"], wt.shape[:1])
+                if wt.ndim != 2 or wt.shape[1] != d or b.shape != (wt.shape[0],):
+                    raise ModelContractError(
+                        f"{info.path}: layer {k} weights {wt.shape}/{b.shape} do not follow a {d}-wide input"
+                    )
+                last = k == len(layers) - 1
+                out = np.zeros(wt.shape[0] + (0 if last else 1), np.float32)
+                if not last:
+                    out[-1] = 1.0
+                view = out if last else out[:-1]
+                mat = np.vstack([wt.T, b[None, :]])
+                if last:
+                    # the command map folded into the action head (float64, then rounded once):
+                    # u·√(1 + clip(a, lo, hi)) = √(clip(u²·(a + 1), u²·(lo + 1), u²·(hi + 1)))
+                    mat[-1] += 1.0
+                    mat *= self._u_hover**2
+                mat = np.ascontiguousarray(mat, np.float32)
+                self._dense.append((prev, mat, view, _activation(layer.get("activation"))))
+                prev, d = out, wt.shape[0]
+            if d != NUM_MOTORS:
+                raise ModelContractError(f"{info.path}: the last layer has {d} outputs, expected {NUM_MOTORS}")
+            self._y = prev
+            # constants as float32 arrays: a ufunc converts a Python scalar on every call (~0.2 µs)
+            full = lambda v, n=NUM_MOTORS: np.full(n, v, np.float32)  # noqa: E731
+            u2 = self._u_hover**2
+            self._k = (full(u2 * (self._a_lo + 1.0)), full(u2 * (self._a_hi + 1.0)), full(self._c_lo), full(self._c_hi))
+            if info.recurrent:
+                self._half = full(0.5, 3 * self._hidden)
+            # with a in [−1, 1], u_hover·√(1 + a) lies in [0, u_hover·√2]: the command clip can only act
+            # when u_hover·√2 may exceed its upper bound (the graph keeps it; here it costs 0.5 µs)
+            self._final_clip = not (
+                self._c_lo <= 0.0 and float(np.float32(self._u_hover)) * 1.41421357 < self._c_hi - 1e-6
+            )
+        except (KeyError, TypeError, ValueError) as e:
+            if isinstance(e, ModelContractError):
+                raise
+            raise ModelContractError(f"{info.path}: architecture metadata incomplete ({e!r})") from None
+
+    def _act(self, x: np.ndarray) -> np.ndarray:
+        if self._norm is None:
+            self._x[...] = x
+        else:
+            mean, inv_std, clip = self._norm
+            t = self._x
+            np.subtract(x, mean, out=t)
+            t *= inv_std
+            np.clip(t, -clip, clip, out=t)
+        if self.info.recurrent:
+            self._lstm_step()
+        for inp, mat, out, act in self._dense:
+            np.dot(inp, mat, out=out)
+            if act is not None:
+                act(out)
+        y = self._y
+        lo, hi, c_lo, c_hi = self._k
+        np.maximum(y, lo, out=y)  # np.clip costs 4× two ufuncs at this size
+        np.minimum(y, hi, out=y)  # u²·(1 + a), a the clipped mean action
+        np.sqrt(y, out=y)  # u·√(1 + a): core.dynamics.action_to_command
+        if self._final_clip:
+            np.maximum(y, c_lo, out=y)
+            np.minimum(y, c_hi, out=y)
+        return y.copy()
+
+    def _lstm_step(self) -> None:
+        hsz = self._hidden
+        g = self._gates
+        np.dot(self._z, self._A_lstm, out=g)
+        np.tanh(g, out=g)
+        s = g[: 3 * hsz]
+        np.multiply(s, self._half, out=s)
+        np.add(s, self._half, out=s)  # σ of the halved i, f, o pre-activations
+        i, f, o, cand = g[:hsz], g[hsz : 2 * hsz], g[2 * hsz : 3 * hsz], g[3 * hsz :]
+        c, t = self._c, self._tmp
+        c *= f
+        np.multiply(i, cand, out=t)
+        c += t  # c' = f·c + i·g
+        np.tanh(c, out=t)
+        h = self._h_aug[:hsz]
+        np.multiply(o, t, out=h)  # h' = o·tanh(c')
+        self._h_view[...] = h
+
+    def reset(self) -> None:
+        if self.info.recurrent:
+            self._c.fill(0.0)
+            self._h_view.fill(0.0)
+            self._h_aug[: self._hidden] = 0.0
+
+    @property
+    def state(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(h, c) copies for a recurrent policy, else None."""
+        if not self.info.recurrent:
+            return None
+        return self._h_view.copy(), self._c.copy()
+
+
+def load_policy(path: str | os.PathLike, backend: str = "onnxruntime") -> Policy:
+    """Check the file's contract, build the backend, and replay the golden vectors.
+
+    Raises ModelContractError (a ValueError) naming what is wrong; never returns a policy that
+    failed a check."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    model, info = read_model(path)
+    if backend == "onnxruntime":
+        policy: Policy = OnnxRuntimePolicy(info, model.SerializeToString())
+    else:
+        from onnx import numpy_helper
+
+        weights = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
+        policy = NumpyPolicy(info, weights)
+    worst = policy.verify_golden()
+    if not worst <= GOLDEN_TOLERANCE:
+        raise ModelContractError(
+            f"{info.path}: the {backend} backend does not reproduce the file's golden vectors "
+            f"(max abs difference {worst:.3g}, allowed {GOLDEN_TOLERANCE:g}); the weights or the graph were altered"
+        )
+    return policy

@@ -1,0 +1,365 @@
+"""Classical fallback controller: what flies the vehicle when the learned policy may not.
+
+The safety monitor hands control here when the policy's output is non-finite or the state has left
+the policy's envelope. The job is to bring the vehicle back to the target and hold it there, from
+any attitude the policy could plausibly have left it in, without a model of its own beyond the
+nominal `VehicleParams`. NumPy and `quadpilot.core` only (see DESIGN.md, import direction).
+
+Structure, a cascade from the slow loop to the fast one, each stage saturated before the next:
+
+1. Position P → velocity set-point (clipped to a maximum speed, so a far start cruises instead of
+   accelerating for ever).
+2. Velocity PI → desired acceleration (clipped vertically and horizontally, tilt ≤ `max_tilt_deg`).
+   The integral of the velocity error is the integral action on position: with v_sp = −k_p·e,
+   ∫(v_sp − v) dt = −k_p·∫e dt − (e − e₀). At rest it can only settle where e = 0, so a thrust or
+   mass mismatch (a constant force) leaves no steady position error. Placed on the velocity error
+   rather than directly on e, it needs no overshoot to unwind after an offset start: a plain
+   position PID starting with an empty integrator must return ∫e to its final value, so an offset
+   start always overshoots (25 % for a triple real pole); here ∫(v_sp − v) stays near zero whenever
+   the vehicle follows its velocity set-point. This is the structure of PX4's multicopter position
+   controller (mc_pos_control: position P, velocity PID).
+3. Geometric attitude control on SO(3) after Lee, Leok & McClamroch, "Geometric tracking control of
+   a quadrotor UAV on SE(3)", CDC 2010 (arXiv:1003.2005), section III: desired body z axis along
+   the desired force, thrust = that force projected on the current body z axis, desired x axis from
+   the held heading, attitude error e_R = ½(R_dᵀR − RᵀR_d)^∨, moment
+   M = −k_R·e_R − k_Ω·Ω + Ω × JΩ (desired body rates taken as zero: a hover controller).
+4. Mixing: total thrust and body moments → per-rotor thrusts through the inverse of the allocation
+   matrix built from `core.dynamics.MOTOR_LAYOUT` (the same geometry the model integrates),
+   roll/pitch before collective thrust before yaw when a rotor saturates, then ω = √(F/k_f) and the
+   command ω/ω_max in [0, 1] (PX4 HIL_ACTUATOR_CONTROLS convention, motor order of the model).
+
+Frames as in `core`: world ENU (z up), body FLU. The observation carries no target heading, so the
+controller holds the heading it found on its first call after construction or `reset()`, and damps
+the yaw rate. The integrator and the held heading are the only state; `reset()` clears both, and
+the first `act` after it latches the heading. Reset at the start of each flight and call `act` only
+while the fallback flies (as `runtime.safety` does): then the heading is latched at the hand-over.
+A fallback stepped in the background ("shadow mode") would need a `reset()` at the hand-over.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quadpilot.core.dynamics import MOTOR_LAYOUT, NUM_MOTORS
+from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT
+from quadpilot.core.params import VehicleParams, get_preset
+
+_HOVER_SLICES = HOVER_LAYOUT.slices()
+_TRACK_SLICES = TRACK_LAYOUT.slices()
+_POS, _VEL, _ROT, _RATES = (_HOVER_SLICES[k] for k in ("pos_error", "vel", "rot", "rates"))
+_TARGET_VEL = _TRACK_SLICES["target_vel"]
+_MAX_ABS_OBS = 1e6  # see `FallbackController.act`
+if any(_TRACK_SLICES[k] != _HOVER_SLICES[k] for k in _HOVER_SLICES):
+    raise ImportError("fallback: the track observation layout no longer extends the hover layout; update the slices")
+
+
+@dataclass(frozen=True)
+class FallbackGains:
+    """Gains and limits of the fallback controller for one airframe, in physical units.
+
+    Build with `FallbackGains.for_vehicle`, which derives them from closed-loop frequencies and the
+    vehicle's mass, inertia and rotor authority; any field can be overridden with
+    `dataclasses.replace`.
+    """
+
+    pos_p: float
+    """1/s, position error → velocity set-point (the position loop's bandwidth)."""
+    vel_p: float
+    """N·s/m, velocity error → force (mass × the velocity loop's bandwidth)."""
+    vel_i: float
+    """N/m, integrated velocity error (m) → force; the integral action on position."""
+    integral_limit_xy: float
+    """N, anti-windup clamp on the horizontal magnitude of the integral force."""
+    integral_limit_z: float
+    """N, anti-windup clamp on the vertical integral force; must exceed the worst weight mismatch
+    to be absorbed (0.2·m·g for ±20 % mass)."""
+    max_speed_xy: float
+    """m/s, horizontal speed set-point limit (a far start cruises at this speed)."""
+    max_speed_z: float
+    """m/s, vertical speed set-point limit, up and down."""
+    max_accel_xy: float
+    """m/s², horizontal acceleration command limit (before the tilt limit, which may be tighter)."""
+    max_accel_up: float
+    """m/s², upward acceleration command limit (on top of gravity compensation)."""
+    max_accel_down: float
+    """m/s², downward acceleration command limit; below g so the rotors keep some thrust, and with
+    it attitude authority, while descending."""
+    max_tilt_deg: float
+    """deg, limit on the angle between the commanded thrust direction and world up."""
+    att_p: tuple[float, float, float]
+    """N·m/rad, attitude error → moment about body x, y, z (k_R of Lee et al. 2010, per axis)."""
+    rate_d: tuple[float, float, float]
+    """N·m·s/rad, body rate → damping moment about body x, y, z (k_Ω of Lee et al. 2010)."""
+
+    @classmethod
+    def for_vehicle(
+        cls,
+        vehicle: VehicleParams,
+        dt: float = 0.01,
+        *,
+        att_damping: float = 0.8,
+        att_ref_angle: float = 0.6,
+        yaw_ref_angle: float = 0.5,
+        max_att_freq_dt: float = 0.2,
+        vel_to_att_ratio: float = 0.4,
+        pos_to_vel_ratio: float = 0.25,
+        integral_zero_ratio: float = 0.25,
+        max_tilt_deg: float = 35.0,
+    ) -> FallbackGains:
+        """Gains for `vehicle` at control period `dt` from closed-loop frequencies.
+
+        Attitude, per axis: J·ë = −k_R·e − k_Ω·ė closes to ω_n² = k_R/J and 2ζω_n = k_Ω/J, so
+        k_R = J·ω_n², k_Ω = 2ζ·J·ω_n. ω_n is chosen per axis as the smaller of two bounds:
+        - authority: a step of `att_ref_angle` rad (about the 35° tilt limit) should ask for no more
+          angular acceleration than the rotors give at hover without losing collective thrust:
+          α_max = 4·ΔF·lever/J with ΔF = min(F_hover, F_max − F_hover), lever = arm/√2 for roll and
+          pitch, k_m for yaw; so ω_n = √(α_max/ref). The yaw lever k_m is about a tenth of the arm,
+          so yaw gets the lower bandwidth, most of all on the seed vehicle;
+        - sampling: ω_n·dt ≤ `max_att_freq_dt` keeps the zero-order hold's phase lag (ω·dt/2 rad)
+          near 6°, where the continuous-time design still holds.
+        Seed vehicle at 100 Hz: roll/pitch ≈ 18.7 rad/s (authority), yaw ≈ 5.4 rad/s. Crazyflie: 20
+        rad/s on all three axes (sampling), its rotors having ~3× the angular authority per inertia.
+
+        Translation, per axis, in acceleration units (then × mass, so a heavier preset gets
+        proportionally larger force gains): velocity P bandwidth k_v = `vel_to_att_ratio`·ω_att, so
+        the attitude loop is ~2.5× faster and looks nearly instantaneous to it; the PI zero at
+        k_i/k_v = `integral_zero_ratio`·k_v; position bandwidth k_p = `pos_to_vel_ratio`·k_v. The
+        closed loop s³ + k_v·s² + (k_v·k_p + k_i)·s + k_i·k_p has its poles at −1.27 and
+        −2.96 ± 3.09j rad/s for the seed vehicle (k_v 7.2/s, k_i 12.9/s², k_p 1.8/s) and −1.41 and
+        −3.30 ± 3.44j for the Crazyflie (8, 16, 2). Measured on the full model: no overshoot on a
+        1 m step, within 2 cm after 2.8 s (seed) and 2.5 s (Crazyflie).
+        """
+        if not (dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+        f_hover, f_max = vehicle.hover_thrust, vehicle.max_thrust
+        if not f_max > f_hover:
+            raise ValueError(
+                f"vehicle {vehicle.name!r} cannot hover: full thrust {4 * f_max:.3g} N ≤ weight {vehicle.weight:.3g} N"
+            )
+        df = min(f_hover, f_max - f_hover)  # N, per-rotor differential available around hover
+        lever_rp = vehicle.arm / math.sqrt(2.0)  # m, X frame: each rotor's moment arm about x and y
+        inertia = (vehicle.ixx, vehicle.iyy, vehicle.izz)
+        levers = (lever_rp, lever_rp, vehicle.k_m)
+        refs = (att_ref_angle, att_ref_angle, yaw_ref_angle)
+        w_cap = max_att_freq_dt / dt
+        w_att = [
+            min(math.sqrt(4.0 * df * lv / j / ref), w_cap) for j, lv, ref in zip(inertia, levers, refs, strict=True)
+        ]
+        att_p = tuple(j * w * w for j, w in zip(inertia, w_att, strict=True))
+        rate_d = tuple(2.0 * att_damping * j * w for j, w in zip(inertia, w_att, strict=True))
+
+        m, g = vehicle.mass, vehicle.gravity
+        k_v = vel_to_att_ratio * min(w_att[0], w_att[1])  # 1/s
+        k_i = integral_zero_ratio * k_v * k_v  # 1/s²
+        k_p = pos_to_vel_ratio * k_v  # 1/s
+        return cls(
+            pos_p=k_p,
+            vel_p=m * k_v,
+            vel_i=m * k_i,
+            # ±35 % of weight vertically absorbs ±20 % mass with room to spare; horizontally 20 % of
+            # weight (≈11° of tilt) covers a centre-of-mass offset or a steady wind.
+            integral_limit_xy=0.2 * m * g,
+            integral_limit_z=0.35 * m * g,
+            max_speed_xy=2.0,
+            max_speed_z=1.5,
+            # horizontal acceleration: g·tan(30°) ≈ 5.7 m/s², inside the tilt limit at hover thrust
+            max_accel_xy=g * math.tan(math.radians(30.0)),
+            max_accel_up=0.5 * g,
+            max_accel_down=0.5 * g,
+            max_tilt_deg=max_tilt_deg,
+            att_p=att_p,
+            rate_d=rate_d,
+        )
+
+
+def allocation_matrix(vehicle: VehicleParams) -> np.ndarray:
+    """(4, 4) map from per-rotor thrusts (N, model motor order) to [total thrust, τx, τy, τz].
+
+    Written from `MOTOR_LAYOUT` exactly as `core.dynamics` integrates it: a rotor at (x, y) in FLU
+    pushing F along +z makes r × F = (y·F, −x·F, 0); a counter-clockwise rotor (spin +1, seen from
+    above) reacts on the body with −k_m·F about z.
+    """
+    a = vehicle.arm / math.sqrt(2.0)
+    rows = np.zeros((4, NUM_MOTORS))
+    for i, (x, y, spin) in enumerate(MOTOR_LAYOUT.values()):
+        rows[:, i] = (1.0, a * y, -a * x, -spin * vehicle.k_m)
+    return rows
+
+
+class FallbackController:
+    """Cascaded position/velocity/attitude hover controller with motor mixing (one drone).
+
+    `act(obs)` takes one observation in the `core.observation` hover (18) or track (21) layout and
+    returns float32 (4,) rotor commands ω/ω_max in [0, 1] in the model's (PX4 quad-X) motor order,
+    always finite. Stateful: a velocity-error integrator and the held heading; `reset()` clears both.
+    """
+
+    def __init__(self, vehicle: VehicleParams, dt: float = 0.01, gains: FallbackGains | None = None) -> None:
+        if not (dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+        self.vehicle = vehicle
+        self.dt = float(dt)
+        self.gains = FallbackGains.for_vehicle(vehicle, dt) if gains is None else gains
+        g = self.gains
+        m = vehicle.mass
+
+        # Translational gains per unit mass (acceleration units); the force is m·a at the end.
+        self._k_p = g.pos_p
+        self._k_v = g.vel_p / m
+        self._k_i = g.vel_i / m
+        self._i_max_xy = g.integral_limit_xy / g.vel_i if g.vel_i > 0 else 0.0  # m, on the integrator state
+        self._i_max_z = g.integral_limit_z / g.vel_i if g.vel_i > 0 else 0.0
+        self._tan_tilt = math.tan(math.radians(g.max_tilt_deg))
+        self._mass = m
+        self._gravity = vehicle.gravity
+        self._k_r = np.array(g.att_p, dtype=np.float64)
+        self._k_w = np.array(g.rate_d, dtype=np.float64)
+        self._inertia = np.array([vehicle.ixx, vehicle.iyy, vehicle.izz])
+
+        # Mixing: split the inverse allocation into the collective, roll/pitch and yaw columns, so
+        # saturation can give way in order of importance.
+        inv = np.linalg.inv(allocation_matrix(vehicle))
+        self._mix_f = inv[:, 0].copy()  # per-rotor thrust per newton of collective (¼ each)
+        self._mix_rp = inv[:, 1:3].copy()
+        self._mix_yaw = inv[:, 3].copy()
+        self._f_max = vehicle.max_thrust  # N per rotor at command 1
+        self._hover = np.full(NUM_MOTORS, vehicle.hover_command, dtype=np.float32)
+
+        self._integral = np.zeros(3)  # m, ∫(v_sp − v) dt in the world frame
+        self._heading: tuple[float, float] | None = None  # (cos ψ, sin ψ) held
+        self.reset()
+
+    @classmethod
+    def for_preset(cls, name: str, dt: float = 0.01) -> FallbackController:
+        """Controller with the derived gains for a `core.params` preset ("seed", "crazyflie")."""
+        return cls(get_preset(name), dt)
+
+    @property
+    def hover_command(self) -> np.ndarray:
+        """float32 (4,): the nominal hover trim, returned for any non-finite observation."""
+        return self._hover.copy()
+
+    def reset(self) -> None:
+        """Clear the integrator and the held heading: the next `act` behaves like a fresh controller's."""
+        self._integral[:] = 0.0
+        self._heading = None
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Rotor commands for one observation.
+
+        obs: float (18,) hover layout or (21,) track layout (`core.observation`): position error
+        Rᵀ(p − p_target), velocity Rᵀv, R body→world row-major, body rates [, target velocity Rᵀv_t].
+        Returns float32 (4,) in [0, 1], ω/ω_max per rotor in `core.dynamics.MOTOR_LAYOUT` order.
+        A non-finite observation (or one with a value beyond ±1e6) returns the hover trim and
+        leaves the integrator and the held heading untouched.
+        """
+        obs = np.asarray(obs, dtype=np.float64)
+        if obs.shape != (HOVER_LAYOUT.dim,) and obs.shape != (TRACK_LAYOUT.dim,):
+            raise ValueError(
+                f"observation must have shape ({HOVER_LAYOUT.dim},) ({HOVER_LAYOUT.name}) or "
+                f"({TRACK_LAYOUT.dim},) ({TRACK_LAYOUT.name}), got {obs.shape}"
+            )
+        # NaN fails the comparison too. Beyond 1e6 (m, m/s, rad/s) no value describes a flying
+        # vehicle, and products of such values could overflow: treat them as invalid as well.
+        if not np.abs(obs).max() <= _MAX_ABS_OBS:
+            return self._hover.copy()
+        cmd = self._act(obs)
+        if not np.isfinite(cmd).all():  # degenerate geometry; never hand a NaN to the motors
+            return self._hover.copy()
+        return cmd
+
+    def _act(self, obs: np.ndarray) -> np.ndarray:
+        rot = obs[_ROT].reshape(3, 3)  # body → world
+        err = rot @ obs[_POS]  # world, p − p_target
+        vel = rot @ obs[_VEL]  # world
+        rates = obs[_RATES]
+        g, dt = self._gravity, self.dt
+
+        if self._heading is None:
+            # Hold the heading found at hand-over: yaw of the body x axis (ZYX: atan2(R21, R11)).
+            psi = math.atan2(rot[1, 0], rot[0, 0])
+            self._heading = (math.cos(psi), math.sin(psi))
+
+        # 1. position P → velocity set-point, saturated (horizontal magnitude, vertical each way)
+        v_sp = -self._k_p * err
+        if obs.shape[0] == TRACK_LAYOUT.dim:
+            v_sp += rot @ obs[_TARGET_VEL]  # feed the target's velocity forward
+        v_sp[:2] = _clip_norm(v_sp[:2], self.gains.max_speed_xy)
+        v_sp[2] = min(max(v_sp[2], -self.gains.max_speed_z), self.gains.max_speed_z)
+
+        # 2. velocity PI → acceleration, saturated: vertical first, then horizontal within the
+        # tilt the vertical command leaves (tan θ = |a_xy| / (g + a_z)).
+        ev = v_sp - vel
+        acc = self._k_v * ev + self._k_i * self._integral
+        az = min(max(acc[2], -self.gains.max_accel_down), self.gains.max_accel_up)
+        sat_z = az != acc[2]
+        a_xy_max = min(self.gains.max_accel_xy, (g + az) * self._tan_tilt)
+        a_xy_norm = math.hypot(acc[0], acc[1])
+        sat_xy = a_xy_norm > a_xy_max
+        if sat_xy:
+            acc[:2] *= a_xy_max / a_xy_norm
+        acc[2] = az
+        # Anti-windup: integrate only along axes whose command is not saturated (conditional
+        # integration), and clamp what has been integrated.
+        if not sat_xy:
+            self._integral[:2] = _clip_norm(self._integral[:2] + dt * ev[:2], self._i_max_xy)
+        if not sat_z:
+            self._integral[2] = min(max(self._integral[2] + dt * ev[2], -self._i_max_z), self._i_max_z)
+
+        # 3. geometric attitude control (Lee, Leok & McClamroch 2010)
+        force = self._mass * acc
+        force[2] += self._mass * g  # desired force, world; force[2] ≥ m·(g − max_accel_down) > 0
+        b3 = rot[:, 2]  # current body z axis in the world
+        thrust = max(float(force @ b3), 0.0)  # f = F·R e3; no thrust while pointing away from F
+        b3d = force / math.sqrt(float(force @ force))
+        c, s = self._heading
+        b2d = _cross(b3d, (c, s, 0.0))  # b1c = held heading; |b3d × b1c| > 0 as the tilt is < 90°
+        b2d /= math.sqrt(float(b2d @ b2d))
+        b1d = _cross(b2d, b3d)
+        rd_t_r = np.array((b1d, b2d, b3d)) @ rot  # R_dᵀR (rows of R_dᵀ are b1d, b2d, b3d)
+        # e_R = ½(R_dᵀR − RᵀR_d)^∨, and RᵀR_d = (R_dᵀR)ᵀ
+        e_r = 0.5 * np.array((rd_t_r[2, 1] - rd_t_r[1, 2], rd_t_r[0, 2] - rd_t_r[2, 0], rd_t_r[1, 0] - rd_t_r[0, 1]))
+        moment = -self._k_r * e_r - self._k_w * rates + _cross(rates, self._inertia * rates)
+
+        # 4. mixing
+        return self._mix(thrust, moment)
+
+    def _mix(self, thrust: float, moment: np.ndarray) -> np.ndarray:
+        """Collective thrust (N) and body moment (N·m) → float32 rotor commands in [0, 1].
+
+        When rotors saturate, roll/pitch are kept (scaled only if their spread alone exceeds the
+        rotor range), the collective gives way to them, and yaw takes whatever margin is left: a
+        vehicle that holds its attitude can recover height, one that does not cannot.
+        """
+        f_max = self._f_max
+        d_rp = self._mix_rp @ moment[:2]
+        spread = float(d_rp.max() - d_rp.min())
+        if spread > f_max:
+            d_rp *= f_max / spread
+        base = thrust * self._mix_f[0]  # ¼ of the collective per rotor
+        base = min(max(base, -float(d_rp.min())), f_max - float(d_rp.max()))
+        per_rotor = base + d_rp
+        d_yaw = self._mix_yaw * moment[2]
+        # largest scale s ∈ [0, 1] keeping per_rotor + s·d_yaw within [0, f_max]
+        scale = 1.0
+        for f, dy in zip(per_rotor.tolist(), d_yaw.tolist(), strict=True):
+            room = f_max - f if dy > 0 else f  # N this rotor can still go up (dy > 0) or down
+            if abs(dy) * scale > room:
+                scale = max(room, 0.0) / abs(dy)
+        per_rotor += scale * d_yaw
+        # F = k_f·ω² and f_max = k_f·ω_max², so ω/ω_max = √(F/f_max); clip only rounding
+        cmd = np.sqrt(np.minimum(np.maximum(per_rotor * (1.0 / f_max), 0.0), 1.0))
+        return cmd.astype(np.float32)
+
+
+def _clip_norm(v: np.ndarray, limit: float) -> np.ndarray:
+    n = math.hypot(*v)
+    return v * (limit / n) if n > limit else v
+
+
+def _cross(a, b) -> np.ndarray:
+    """3-vector cross product; np.cross costs ~10 µs on 3-vectors, this ~1 µs."""
+    return np.array((a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]))

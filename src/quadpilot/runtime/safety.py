@@ -1,0 +1,167 @@
+"""The safety monitor: every observation is checked before it reaches the policy, every command
+after, and anything outside what the policy was trained for goes to the classical fallback.
+
+    monitor = SafetyMonitor(load_policy("policy.onnx"))   # fallback built for the file's vehicle
+    motors = monitor.act(obs)                             # (4,) float32, finite, in [0, 1]
+    monitor.events                                        # counts by reason
+
+Per call, in order:
+
+1. Observation: every value finite and within a physically possible magnitude for its field
+   (`ObservationLimits`). +Inf passed to the network goes through tanh to a saturated, full-thrust
+   command without any error, so this is checked first. A bad observation is never given to the
+   policy; the fallback flies on the last good observation (or, with none, holds hover thrust).
+2. Envelope: distance to the target and roll/pitch within what the file's metadata says the
+   policy was trained in (training episodes ended beyond them, so the policy never learned to act
+   there). Outside it, the fallback flies.
+3. Command: a non-finite command hands over to the fallback; a finite one outside [0, 1] is
+   clamped and counted (the exported graph clamps already, so this means a foreign graph).
+
+A hand-over latches: the fallback keeps control until `reset()` (a deliberate re-arm), as a
+flight controller's failsafe does; flipping between two controllers every step is worse than
+either. `events` counts every reason, `source` says who flew the last step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from .backends import ObservationShapeError, Policy
+
+NUM_MOTORS = 4
+
+
+@dataclass(frozen=True)
+class ObservationLimits:
+    """Largest magnitude believed per observation field; beyond it the value is a fault, not a state."""
+
+    pos_error: float = 1000.0
+    """m. A kilometre from the target is no hover any controller should trust."""
+    vel: float = 100.0
+    """m/s. Well beyond any small multirotor."""
+    rot: float = 1.0 + 1e-3
+    """Rotation-matrix entries lie in [−1, 1]; the margin allows float32 rounding."""
+    rates: float = 70.0
+    """rad/s, twice a 2000 °/s gyro's full scale (the usual MEMS range)."""
+    target_vel: float = 100.0
+    """m/s."""
+
+    def vector(self, layout) -> np.ndarray:
+        """(obs_dim,) float64 bound per value, in the layout's order."""
+        out = np.empty(layout.dim)
+        for name, sl in layout.slices().items():
+            out[sl] = getattr(self, name)
+        return out
+
+
+class SafetyMonitor:
+    """Wraps a runtime policy (any backend) with checks and a latched classical fallback."""
+
+    def __init__(self, policy: Policy, fallback=None, limits: ObservationLimits | None = None) -> None:
+        from .fallback import FallbackController
+
+        self.policy = policy
+        self._policy_act = policy._act
+        info = policy.info
+        self.fallback = fallback if fallback is not None else FallbackController(info.vehicle, info.control_period_s)
+        self.limits = limits or ObservationLimits()
+        self._bound = self.limits.vector(info.layout).tolist()
+        self._dim = info.obs_dim
+        sl = info.layout.slices()
+        self._pos = sl["pos_error"].start
+        rot = sl["rot"].start
+        self._r31, self._r32, self._r33 = rot + 6, rot + 7, rot + 8  # row-major R, third row
+        self._max_dist_sq = float(info.envelope["max_distance_m"]) ** 2
+        max_tilt = math.radians(float(info.envelope["max_tilt_deg"]))
+        if not 0.0 < max_tilt < math.pi / 2:
+            raise ValueError(f"envelope max_tilt_deg {info.envelope['max_tilt_deg']}: expected a value in (0, 90)")
+        self._sin_max_tilt = math.sin(max_tilt)
+        self._cos2_max_tilt = math.cos(max_tilt) ** 2
+        self.events: Counter[str] = Counter()
+        self.source = "policy"
+        self._last_good: list | None = None
+        self._latched = False
+        self._hover = np.full(NUM_MOTORS, info.vehicle.hover_command, np.float32)
+
+    @property
+    def in_fallback(self) -> bool:
+        return self._latched
+
+    def reset(self) -> None:
+        """New episode or explicit re-arm: the policy flies again, recurrent state and fallback
+        integrators cleared. Event counts are kept (they are a log, not a state)."""
+        self.policy.reset()
+        self.fallback.reset()
+        self._latched = False
+        self._last_good = None
+        self.source = "policy"
+
+    def _outside_envelope(self, vals: list) -> bool:
+        p = self._pos
+        e0, e1, e2 = vals[p], vals[p + 1], vals[p + 2]
+        if e0 * e0 + e1 * e1 + e2 * e2 > self._max_dist_sq:
+            return True
+        # ZYX Euler as in core.frames (the angles training terminated on): pitch = −asin(R31), and
+        # roll = atan2(R32, R33) with (R32, R33) = cos(pitch)·(sin roll, cos roll), so
+        # |roll| ≤ θ ⟺ R33 ≥ 0 and R33² ≥ cos²θ·(R32² + R33²), without a trigonometric call
+        if abs(vals[self._r31]) > self._sin_max_tilt:
+            return True
+        r32, r33 = vals[self._r32], vals[self._r33]
+        return r33 < 0.0 or r33 * r33 < self._cos2_max_tilt * (r32 * r32 + r33 * r33)
+
+    def _hand_over(self, reason: str) -> None:
+        self.events[reason] += 1
+        if not self._latched:
+            self._latched = True
+            self.events["fallback_engaged"] += 1
+
+    def _fly_fallback(self) -> np.ndarray:
+        self.events["fallback_steps"] += 1
+        self.source = "fallback"
+        if self._last_good is None:
+            return self._hover.copy()
+        cmd = np.asarray(self.fallback.act(np.array(self._last_good)), np.float32)
+        if not np.all(np.isfinite(cmd)):  # belt and braces: never send NaN (PX4 reads it as stop)
+            self.events["fallback_nonfinite"] += 1
+            return self._hover.copy()
+        return np.clip(cmd, 0.0, 1.0)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Motor commands (4,) float32 in [0, 1], finite, for one raw observation (obs_dim,)."""
+        if type(obs) is not np.ndarray:
+            obs = np.asarray(obs, np.float32)
+        if obs.ndim != 1:
+            obs = obs.reshape(-1)
+        vals = obs.tolist()
+        if len(vals) != self._dim:
+            raise ObservationShapeError(
+                f"observation has shape {obs.shape}; the policy's layout {self.policy.info.layout.name} expects "
+                f"({self._dim},)"
+            )
+        # written out inline: this runs at the control rate and every call costs (see benchmarks)
+        for v, b in zip(vals, self._bound, strict=False):  # lengths equal: checked above
+            if not -b <= v <= b:  # also False for NaN
+                self._hand_over("obs_out_of_range" if math.isfinite(v) else "obs_nonfinite")
+                return self._fly_fallback()
+        self._last_good = vals  # a copy: the caller may reuse its buffer
+        if self._latched:
+            return self._fly_fallback()
+        if self._outside_envelope(vals):
+            self._hand_over("out_of_envelope")
+            return self._fly_fallback()
+        cmd = self._policy_act(obs)
+        self.source = "policy"
+        for v in cmd.tolist():
+            if not 0.0 <= v <= 1.0:  # False for NaN too (min/max of a list would skip a NaN)
+                break
+        else:
+            return cmd
+        if not np.isfinite(cmd).all():
+            self._hand_over("command_nonfinite")
+            return self._fly_fallback()
+        self.events["command_clamped"] += 1
+        return np.clip(cmd, 0.0, 1.0)
