@@ -1,11 +1,14 @@
 """Markdown table of batch-1 policy latency from one run of benchmarks/test_policy_latency.py.
 
-    .venv/bin/python benchmarks/report_latency.py docs/bench/policy_latency.json
+    .venv/bin/python benchmarks/report_latency.py docs/bench/policy_latency.json --strip-data
 
 Prints p50 and p99 per case (µs, from the per-call round times), each case's speed-up over torch
 eager on the same network in the same run (ratio of p50), and whether the export issue's targets
 are met: MLP p50 ≤ 8 µs and p99 ≤ 20 µs on the faster monitored backend (validation included) and
 ≥ 5× faster than torch eager; LSTM monitored step p50 ≤ 25 µs.
+
+pytest-benchmark stores every round's time (about 9 MB for this suite); `--strip-data` rewrites the
+file without them (p50/p99 are kept in each benchmark's extra_info), small enough to keep in docs/.
 """
 
 from __future__ import annotations
@@ -46,8 +49,14 @@ def load(path: Path) -> tuple[dict, dict]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("json", type=Path, help="file written by pytest --benchmark-json")
+    ap.add_argument("--strip-data", action="store_true", help="rewrite the JSON without the per-round times")
     args = ap.parse_args(argv)
     res, machine = load(args.json)
+    if args.strip_data:
+        data = json.loads(args.json.read_text())
+        for b in data.get("benchmarks", []):
+            b.get("stats", {}).pop("data", None)
+        args.json.write_text(json.dumps(data, indent=1) + "\n")
     cpu = machine.get("cpu", {}).get("brand_raw", platform.processor() or "?")
     print(f"Machine: {cpu}, {machine.get('cpu', {}).get('count', '?')} cores; Python {machine.get('python_version')}.")
     print()

@@ -14,7 +14,7 @@ Run (the project's addopts disable benchmarks, so enable them here):
 
     .venv/bin/python -m pytest benchmarks/test_policy_latency.py --benchmark-enable --benchmark-only \
         --benchmark-json=docs/bench/policy_latency.json -p no:cacheprovider
-    .venv/bin/python benchmarks/report_latency.py docs/bench/policy_latency.json
+    .venv/bin/python benchmarks/report_latency.py docs/bench/policy_latency.json --strip-data
 
 Each round is one call (`pedantic`, iterations=1), so the round times are the per-call latency
 distribution; p50 and p99 are taken from it (pytest-benchmark reports no p99 itself, so it goes into

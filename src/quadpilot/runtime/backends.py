@@ -44,12 +44,14 @@ class Policy:
         """Motor commands (4,) float32 for one observation (obs_dim,) or (1, obs_dim)."""
         if type(obs) is not np.ndarray:
             obs = np.asarray(obs, np.float32)
-        if obs.size != self.obs_dim:
-            raise ObservationShapeError(
-                f"observation has shape {obs.shape}; this policy ({self.info.layout.name}) expects "
-                f"({self.obs_dim},) float32"
-            )
-        return self._act(obs.reshape(self.obs_dim))
+        if obs.shape != (self.obs_dim,):
+            if obs.shape != (1, self.obs_dim):
+                raise ObservationShapeError(
+                    f"observation has shape {obs.shape}; this policy ({self.info.layout.name}) expects "
+                    f"({self.obs_dim},) or (1, {self.obs_dim}) float32"
+                )
+            obs = obs.reshape(self.obs_dim)
+        return self._act(obs)
 
     def _act(self, x: np.ndarray) -> np.ndarray:
         raise NotImplementedError

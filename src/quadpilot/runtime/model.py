@@ -135,7 +135,12 @@ def read_model(path: str | os.PathLike):
     except (onnx.checker.ValidationError, onnx.shape_inference.InferenceError, RuntimeError) as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise _fail(path, f"onnx.checker rejects the model: {first}") from None
-    info = _read_metadata(path, {p.key: p.value for p in model.metadata_props})
+    props = {}
+    for p in model.metadata_props:
+        if not isinstance(p.key, str) or not isinstance(p.value, str):  # upb hands back bytes for bad UTF-8
+            raise _fail(path, f"metadata entry {p.key!r} is not valid UTF-8 text (a corrupted file)")
+        props[p.key] = p.value
+    info = _read_metadata(path, props)
     _check_io(path, model, info)
     return model, info
 
@@ -156,9 +161,9 @@ def _read_metadata(path, props: dict) -> ModelInfo:
     if layout_json != json.loads(json.dumps(layout.to_json())):
         raise _fail(
             path,
-            f"observation layout {layout.name!r}: the file lists fields "
-            f"{[f.get('name') for f in layout_json.get('fields', [])]} with their sizes and units, "
-            f"this runtime's has {[f.name for f in layout.fields]}",
+            f"observation layout {layout.name!r}: the file lists fields (name, size) "
+            f"{[(f.get('name'), f.get('size')) for f in layout_json.get('fields', [])]}, "
+            f"this runtime's has {[(f.name, f.size) for f in layout.fields]} (units and meanings must match too)",
         )
     try:
         period = float(props["quadpilot.control_period_s"])
@@ -177,8 +182,15 @@ def _read_metadata(path, props: dict) -> ModelInfo:
         kind = arch.get("kind") if isinstance(arch, dict) else arch
         raise _fail(path, f"architecture kind: expected 'mlp' or 'lstm', found {kind!r}")
     envelope = _json(path, props, "quadpilot.envelope")
-    if not isinstance(envelope, dict) or not {"max_distance_m", "max_tilt_deg"} <= set(envelope):
-        raise _fail(path, f"envelope: expected max_distance_m and max_tilt_deg, found {envelope!r}")
+    try:
+        dist, tilt = float(envelope["max_distance_m"]), float(envelope["max_tilt_deg"])
+        ok = 0.0 < dist < math.inf and 0.0 < tilt < 90.0
+    except (KeyError, TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise _fail(
+            path, f"envelope: expected max_distance_m > 0 and max_tilt_deg in (0, 90) as numbers, found {envelope!r}"
+        )
     golden = _json(path, props, "quadpilot.golden")
     try:
         g_obs = np.asarray(golden["obs"], np.float32)

@@ -10,7 +10,9 @@ Per call, in order:
 1. Observation: every value finite and within a physically possible magnitude for its field
    (`ObservationLimits`). +Inf passed to the network goes through tanh to a saturated, full-thrust
    command without any error, so this is checked first. A bad observation is never given to the
-   policy; the fallback flies on the last good observation (or, with none, holds hover thrust).
+   policy, and the step is flown blind at hover thrust (equal motors: no moment). Not the fallback
+   on the last good observation: it would correct a frozen attitude error open loop, measured to
+   flip the vehicle within a 0.2 s dropout. From the next good observation the fallback flies.
 2. Envelope: distance to the target and roll/pitch within what the file's metadata says the
    policy was trained in (training episodes ended beyond them, so the policy never learned to act
    there). Outside it, the fallback flies.
@@ -71,6 +73,7 @@ class SafetyMonitor:
         self.limits = limits or ObservationLimits()
         self._bound = self.limits.vector(info.layout).tolist()
         self._dim = info.obs_dim
+        self._shape = (self._dim,)
         sl = info.layout.slices()
         self._pos = sl["pos_error"].start
         rot = sl["rot"].start
@@ -83,7 +86,6 @@ class SafetyMonitor:
         self._cos2_max_tilt = math.cos(max_tilt) ** 2
         self.events: Counter[str] = Counter()
         self.source = "policy"
-        self._last_good: list | None = None
         self._latched = False
         self._hover = np.full(NUM_MOTORS, info.vehicle.hover_command, np.float32)
 
@@ -97,7 +99,6 @@ class SafetyMonitor:
         self.policy.reset()
         self.fallback.reset()
         self._latched = False
-        self._last_good = None
         self.source = "policy"
 
     def _outside_envelope(self, vals: list) -> bool:
@@ -119,12 +120,10 @@ class SafetyMonitor:
             self._latched = True
             self.events["fallback_engaged"] += 1
 
-    def _fly_fallback(self) -> np.ndarray:
+    def _fly_fallback(self, obs: np.ndarray) -> np.ndarray:
         self.events["fallback_steps"] += 1
         self.source = "fallback"
-        if self._last_good is None:
-            return self._hover.copy()
-        cmd = np.asarray(self.fallback.act(np.array(self._last_good)), np.float32)
+        cmd = np.asarray(self.fallback.act(obs), np.float32)
         if not np.all(np.isfinite(cmd)):  # belt and braces: never send NaN (PX4 reads it as stop)
             self.events["fallback_nonfinite"] += 1
             return self._hover.copy()
@@ -134,25 +133,26 @@ class SafetyMonitor:
         """Motor commands (4,) float32 in [0, 1], finite, for one raw observation (obs_dim,)."""
         if type(obs) is not np.ndarray:
             obs = np.asarray(obs, np.float32)
-        if obs.ndim != 1:
-            obs = obs.reshape(-1)
+        if obs.shape != self._shape:
+            if obs.shape != (1, self._dim):
+                raise ObservationShapeError(
+                    f"observation has shape {obs.shape}; the policy's layout {self.policy.info.layout.name} expects "
+                    f"({self._dim},) or (1, {self._dim})"
+                )
+            obs = obs.reshape(self._dim)
         vals = obs.tolist()
-        if len(vals) != self._dim:
-            raise ObservationShapeError(
-                f"observation has shape {obs.shape}; the policy's layout {self.policy.info.layout.name} expects "
-                f"({self._dim},)"
-            )
         # written out inline: this runs at the control rate and every call costs (see benchmarks)
         for v, b in zip(vals, self._bound, strict=False):  # lengths equal: checked above
             if not -b <= v <= b:  # also False for NaN
                 self._hand_over("obs_out_of_range" if math.isfinite(v) else "obs_nonfinite")
-                return self._fly_fallback()
-        self._last_good = vals  # a copy: the caller may reuse its buffer
+                self.events["blind_steps"] += 1
+                self.source = "fallback"
+                return self._hover.copy()
         if self._latched:
-            return self._fly_fallback()
+            return self._fly_fallback(obs)
         if self._outside_envelope(vals):
             self._hand_over("out_of_envelope")
-            return self._fly_fallback()
+            return self._fly_fallback(obs)
         cmd = self._policy_act(obs)
         self.source = "policy"
         for v in cmd.tolist():
@@ -162,6 +162,6 @@ class SafetyMonitor:
             return cmd
         if not np.isfinite(cmd).all():
             self._hand_over("command_nonfinite")
-            return self._fly_fallback()
+            return self._fly_fallback(obs)
         self.events["command_clamped"] += 1
         return np.clip(cmd, 0.0, 1.0)
