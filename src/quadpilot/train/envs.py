@@ -11,7 +11,6 @@ Terminated (crash, leaving the flight area) and truncated (time limit) are kept 
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,6 +22,7 @@ from quadpilot.core import dynamics
 from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT, ObsLayout, build_observation
 from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
 from quadpilot.core.reward import RewardConfig, circle_errors, circle_reward, crashed, hover_reward
+from quadpilot.core.start import sample_ball, sample_start_states
 
 TASKS = ("hover", "waypoint", "circle")
 
@@ -123,13 +123,6 @@ def make_config(task: str | None = None, **kwargs: Any) -> EnvConfig:
     return EnvConfig(**{**defaults.get(kwargs.get("task", "hover"), {}), **kwargs})
 
 
-def sample_ball(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
-    """(n, 3) points uniform in a ball."""
-    v = rng.normal(size=(n, 3))
-    v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
-    return v * (radius * rng.random((n, 1)) ** (1.0 / 3.0))
-
-
 class QuadBatch:
     """N drones of one task: state, targets, episode bookkeeping. Pure NumPy, no Python loop
     over drones. `reset(mask, rng)` re-samples the selected drones; `step(action)` advances all."""
@@ -171,7 +164,6 @@ class QuadBatch:
         if k == 0:
             return
         c = self.cfg
-        tilt = math.radians(c.init_tilt_deg)
         start = np.tile(self.home, (k, 1))
         if c.task == "waypoint":
             self.target[idx] = self.home + sample_ball(rng, k, self.target_radius)
@@ -180,13 +172,7 @@ class QuadBatch:
             self.steps[idx] = 0
             start, self.target_vel[idx] = self._circle_target(idx)
             self.target[idx] = start
-        s = np.zeros((k, dynamics.STATE_DIM))
-        s[:, 0:3] = start + sample_ball(rng, k, c.init_pos_radius)
-        s[:, 3:6] = rng.uniform(-c.init_vel, c.init_vel, (k, 3))
-        s[:, 6:8] = rng.uniform(-tilt, tilt, (k, 2))
-        s[:, 8] = rng.uniform(-np.pi, np.pi, k)
-        s[:, 9:12] = rng.uniform(-c.init_rate, c.init_rate, (k, 3)) if c.init_rate > 0 else 0.0
-        self.state[idx] = s
+        self.state[idx] = sample_start_states(rng, start, c.init_pos_radius, c.init_vel, c.init_tilt_deg, c.init_rate)
         self.rotor[idx] = self.u_hover
         self.steps[idx] = 0
         self.ep_return[idx] = 0.0

@@ -1,0 +1,293 @@
+"""The MAVLink contract of quadpilot's software-in-the-loop: frames, units and the four messages.
+
+Inside the project: world ENU (z up), body FLU, SI units, the 12-state vector of `core.dynamics`
+(x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r). On the wire, as the MAVLink common message set
+and PX4's Simulator MAVLink API define them: local NED, body FRD, positions as WGS-84 latitude and
+longitude in 1e-7 degrees and altitude in millimetres, velocities in cm/s. This module is the only
+place the two meet; everything is tested by round trips with known states.
+
+Messages (https://mavlink.io/en/messages/common.html):
+- HIL_STATE_QUATERNION (simulator → autopilot, every step): ground truth. attitude_quaternion
+  (w, x, y, z) rotates body FRD into NED; rollspeed/pitchspeed/yawspeed rad/s FRD; lat/lon degE7;
+  alt mm (MSL); vx/vy/vz cm/s NED; xacc/yacc/zacc mG.
+- HIL_SENSOR (simulator → autopilot, every step, last: PX4 steps on it): IMU in FRD, m/s² and
+  rad/s, magnetometer in gauss, barometer hPa.
+- HIL_GPS (simulator → autopilot, at a low rate): lat/lon degE7, alt mm, vn/ve/vd cm/s.
+- HIL_ACTUATOR_CONTROLS (autopilot → simulator, once per step): controls[0..3] motor commands in
+  [0, 1] (normalised rotor speed ω/ω_max, PX4 quad-X order), mode bit 128 = armed
+  (MAV_MODE_FLAG_SAFETY_ARMED), flags bit 1 = lockstep (HIL_ACTUATOR_CONTROLS_FLAGS_LOCKSTEP).
+
+Motor order: our model numbers its rotors in PX4's quad-X order already (core.dynamics
+MOTOR_LAYOUT: 0 front-right, 1 rear-left, 2 front-left, 3 rear-right), so `MOTOR_MAP` is the
+identity; it is kept explicit so that a different airframe changes one line.
+
+Position precision: 1e-7° of latitude is 1.11 cm, of longitude 1.11·cos(lat) cm, altitude 1 mm,
+velocity 1 cm/s. Rounding to the nearest step bounds the position error a policy sees at
+`POSITION_QUANTUM_M` / 2 per horizontal axis and the velocity error at 0.5 cm/s per axis, against
+a hover bar of 5 cm: no extra message is needed for precision. Local ↔ geodetic uses the
+equirectangular approximation around the home point on a sphere of the WGS-84 mean radius (as
+PX4's `map_projection` does for short distances; at 100 m from home it differs from the
+azimuthal-equidistant projection by far less than the 1e-7° quantum).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
+
+EARTH_RADIUS_M = 6_371_008.8  # WGS-84 mean radius (IUGG), m
+G_MG = 9.80665 / 1000.0  # m/s² per milli-g (MAVLink's mG uses standard gravity)
+ARMED = 128  # MAV_MODE_FLAG_SAFETY_ARMED, in HIL_ACTUATOR_CONTROLS.mode
+LOCKSTEP = 1  # HIL_ACTUATOR_CONTROLS_FLAGS_LOCKSTEP, in HIL_ACTUATOR_CONTROLS.flags
+NUM_MOTORS = 4
+MOTOR_MAP = (0, 1, 2, 3)
+"""controls[i] on the wire drives our model's rotor MOTOR_MAP[i] (identity: both are PX4 quad-X)."""
+LAT_QUANTUM_DEG = 1e-7
+
+# ENU ↔ NED swaps x and y and negates z; FLU ↔ FRD negates y and z. Both are their own inverse.
+_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_FLU_FRD = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class Home:
+    """The geodetic origin of the local frame. Default: PX4 SITL's home (Zürich, Irchel park)."""
+
+    lat_deg: float = 47.397742
+    lon_deg: float = 8.545594
+    alt_m: float = 488.0
+    """m above mean sea level, of the local frame's z = 0."""
+
+    @property
+    def metres_per_deg_lat(self) -> float:
+        return math.radians(1.0) * EARTH_RADIUS_M
+
+    @property
+    def metres_per_deg_lon(self) -> float:
+        return math.radians(1.0) * EARTH_RADIUS_M * math.cos(math.radians(self.lat_deg))
+
+    @property
+    def position_quantum_m(self) -> tuple[float, float, float]:
+        """Wire resolution of (east, north, up) in metres."""
+        return (LAT_QUANTUM_DEG * self.metres_per_deg_lon, LAT_QUANTUM_DEG * self.metres_per_deg_lat, 1e-3)
+
+
+def enu_to_ned(v: np.ndarray) -> np.ndarray:
+    """(…, 3) ENU → NED (also NED → ENU)."""
+    v = np.asarray(v, np.float64)
+    return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
+
+
+ned_to_enu = enu_to_ned
+
+
+def flu_to_frd(v: np.ndarray) -> np.ndarray:
+    """(…, 3) body FLU → FRD (also FRD → FLU)."""
+    v = np.asarray(v, np.float64)
+    return np.stack([v[..., 0], -v[..., 1], -v[..., 2]], axis=-1)
+
+
+frd_to_flu = flu_to_frd
+
+
+def rotmat_enu_flu_to_ned_frd(r: np.ndarray) -> np.ndarray:
+    """Body FLU → ENU rotation (3, 3) → the same attitude as body FRD → NED."""
+    return _ENU_NED @ r @ _FLU_FRD
+
+
+rotmat_ned_frd_to_enu_flu = rotmat_enu_flu_to_ned_frd  # the same sandwich: both factors are involutions
+
+
+def rotmat_to_quaternion(r: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation → unit quaternion (w, x, y, z), w ≥ 0 (Shepperd's method, stable for all
+    rotations)."""
+    m = np.asarray(r, np.float64)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2.0
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2.0
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2.0
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    q = np.array(q)
+    q /= np.linalg.norm(q)
+    return -q if q[0] < 0 else q
+
+
+def quaternion_to_rotmat(q) -> np.ndarray:
+    """Quaternion (w, x, y, z), normalised here → (3, 3) rotation."""
+    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def local_to_geodetic(pos_enu: np.ndarray, home: Home) -> tuple[int, int, int]:
+    """Local ENU position (m) → (lat degE7, lon degE7, alt mm), rounded to the wire's integers."""
+    e, n, u = (float(v) for v in pos_enu)
+    lat = home.lat_deg + n / home.metres_per_deg_lat
+    lon = home.lon_deg + e / home.metres_per_deg_lon
+    return round(lat * 1e7), round(lon * 1e7), round((home.alt_m + u) * 1000.0)
+
+
+def geodetic_to_local(lat_e7: int, lon_e7: int, alt_mm: int, home: Home) -> np.ndarray:
+    """(lat degE7, lon degE7, alt mm) → local ENU position (m)."""
+    n = (lat_e7 * 1e-7 - home.lat_deg) * home.metres_per_deg_lat
+    e = (lon_e7 * 1e-7 - home.lon_deg) * home.metres_per_deg_lon
+    return np.array([e, n, alt_mm * 1e-3 - home.alt_m])
+
+
+def _cm(v: float) -> int:
+    """m/s → cm/s as int16, saturated (a velocity beyond ±327 m/s is not a quadrotor's)."""
+    return max(-32767, min(32767, round(v * 100.0)))
+
+
+def hil_state_quaternion_fields(
+    state: np.ndarray, home: Home, time_usec: int, accel_flu: np.ndarray | None = None
+) -> dict:
+    """Keyword arguments of `mav.hil_state_quaternion_send` for one 12-state (ENU/FLU, SI)."""
+    state = np.asarray(state, np.float64)
+    r = euler_to_rotmat(state[6], state[7], state[8])
+    q = rotmat_to_quaternion(rotmat_enu_flu_to_ned_frd(r))
+    rates = flu_to_frd(state[9:12])
+    lat, lon, alt = local_to_geodetic(state[0:3], home)
+    vel = enu_to_ned(state[3:6])
+    acc = flu_to_frd(accel_flu) / G_MG if accel_flu is not None else np.zeros(3)
+    clip16 = lambda a: max(-32767, min(32767, round(float(a))))  # noqa: E731
+    return {
+        "time_usec": int(time_usec),
+        "attitude_quaternion": [float(v) for v in q],
+        "rollspeed": float(rates[0]),
+        "pitchspeed": float(rates[1]),
+        "yawspeed": float(rates[2]),
+        "lat": lat,
+        "lon": lon,
+        "alt": alt,
+        "vx": _cm(vel[0]),
+        "vy": _cm(vel[1]),
+        "vz": _cm(vel[2]),
+        "ind_airspeed": 0,
+        "true_airspeed": 0,
+        "xacc": clip16(acc[0]),
+        "yacc": clip16(acc[1]),
+        "zacc": clip16(acc[2]),
+    }
+
+
+def state_from_hil_state_quaternion(msg, home: Home) -> np.ndarray:
+    """A HIL_STATE_QUATERNION message (or any object with its fields) → 12-state ENU/FLU, SI."""
+    r = rotmat_ned_frd_to_enu_flu(quaternion_to_rotmat(msg.attitude_quaternion))
+    roll, pitch, yaw = rotmat_to_euler(r)
+    out = np.empty(12)
+    out[0:3] = geodetic_to_local(msg.lat, msg.lon, msg.alt, home)
+    out[3:6] = ned_to_enu(np.array([msg.vx, msg.vy, msg.vz], np.float64) * 0.01)
+    out[6:9] = (roll, pitch, yaw)
+    out[9:12] = frd_to_flu(np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed], np.float64))
+    return out
+
+
+def hil_sensor_fields(
+    time_usec: int,
+    gyro_flu: np.ndarray,
+    accel_flu: np.ndarray,
+    mag_flu: np.ndarray,
+    abs_pressure_hpa: float,
+    pressure_alt_m: float,
+    temperature_c: float = 15.0,
+) -> dict:
+    """Keyword arguments of `mav.hil_sensor_send`; vectors in body FLU, converted to FRD here."""
+    g, a, m = flu_to_frd(gyro_flu), flu_to_frd(accel_flu), flu_to_frd(mag_flu)
+    return {
+        "time_usec": int(time_usec),
+        "xacc": float(a[0]),
+        "yacc": float(a[1]),
+        "zacc": float(a[2]),
+        "xgyro": float(g[0]),
+        "ygyro": float(g[1]),
+        "zgyro": float(g[2]),
+        "xmag": float(m[0]),
+        "ymag": float(m[1]),
+        "zmag": float(m[2]),
+        "abs_pressure": float(abs_pressure_hpa),
+        "diff_pressure": 0.0,
+        "pressure_alt": float(pressure_alt_m),
+        "temperature": float(temperature_c),
+        "fields_updated": 0x1FFF,  # acc, gyro, mag, baro, temperature: all updated this step
+        "id": 0,
+    }
+
+
+def gyro_from_hil_sensor(msg) -> np.ndarray:
+    """Body rates (p, q, r) FLU in rad/s from a HIL_SENSOR message."""
+    return frd_to_flu(np.array([msg.xgyro, msg.ygyro, msg.zgyro], np.float64))
+
+
+def hil_gps_fields(state: np.ndarray, home: Home, time_usec: int) -> dict:
+    """Keyword arguments of `mav.hil_gps_send` (3-D fix, 10 satellites, eph/epv 0.3 m)."""
+    lat, lon, alt = local_to_geodetic(state[0:3], home)
+    vn, ve, vd = (float(v) for v in enu_to_ned(state[3:6]))
+    course = math.degrees(math.atan2(ve, vn)) % 360.0
+    return {
+        "time_usec": int(time_usec),
+        "fix_type": 3,
+        "lat": lat,
+        "lon": lon,
+        "alt": alt,
+        "eph": 30,
+        "epv": 30,
+        "vel": min(65534, round(math.hypot(vn, ve) * 100.0)),
+        "vn": _cm(vn),
+        "ve": _cm(ve),
+        "vd": _cm(vd),
+        "cog": round(course * 100.0) % 36000,
+        "satellites_visible": 10,
+        "id": 0,
+        "yaw": 0,  # 0 = not available
+    }
+
+
+class NonFiniteCommand(ValueError):
+    """A motor command that must never be transmitted (PX4 reads NaN as 'stop the motors')."""
+
+
+def actuator_controls_fields(motors: np.ndarray, time_usec: int, armed: bool, lockstep: bool) -> dict:
+    """Keyword arguments of `mav.hil_actuator_controls_send` for 4 motor commands in [0, 1] (our
+    rotor order). Raises NonFiniteCommand for NaN/Inf; clamps finite values to [0, 1]."""
+    motors = np.asarray(motors, np.float64).reshape(-1)
+    if motors.shape != (NUM_MOTORS,):
+        raise ValueError(f"expected {NUM_MOTORS} motor commands, got shape {motors.shape}")
+    if not np.all(np.isfinite(motors)):
+        raise NonFiniteCommand(f"refusing to send non-finite motor commands {motors.tolist()}")
+    controls = [0.0] * 16
+    for wire, ours in enumerate(MOTOR_MAP):
+        controls[wire] = min(1.0, max(0.0, float(motors[ours])))
+    return {
+        "time_usec": int(time_usec),
+        "controls": controls,
+        "mode": ARMED if armed else 0,
+        "flags": LOCKSTEP if lockstep else 0,
+    }
+
+
+def motors_from_actuator_controls(msg) -> tuple[np.ndarray, bool, bool]:
+    """(motor commands (4,) in our rotor order, armed, lockstep) from HIL_ACTUATOR_CONTROLS.
+    Values are returned as sent; the caller decides what to do with non-finite or out-of-range ones."""
+    controls = msg.controls
+    motors = np.empty(NUM_MOTORS)
+    for wire, ours in enumerate(MOTOR_MAP):
+        motors[ours] = controls[wire]
+    return motors, bool(msg.mode & ARMED), bool(msg.flags & LOCKSTEP)
