@@ -1,5 +1,0 @@
-from quadpilot._stub import not_yet
-
-
-def main(argv=None) -> int:
-    return not_yet("quad-sitl", "the SITL issue")

@@ -1,0 +1,67 @@
+"""Sensor models of the simulator: IMU (with optional white noise), magnetometer, barometer.
+
+All vectors are in the project's frames (world ENU, body FLU, SI units); `quadpilot.link.wire`
+turns them into HIL_SENSOR's FRD fields.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from quadpilot.core.frames import euler_to_rotmat
+
+MAG_NED_GAUSS = (0.214, 0.012, 0.433)
+"""gauss, Earth's field (north, east, down) at PX4's default SITL home (Zürich, 47.40° N 8.55° E):
+approximately what the World Magnetic Model gives there (total ≈ 48 µT, inclination ≈ 64°,
+declination ≈ 3° east), rounded. PX4 checks the measured field's direction and strength against its
+own WMM tables (PX4-Autopilot src/lib/world_magnetic_model), so a much different value would raise
+its magnetometer consistency warnings. The field is constant: it does not follow `Home`."""
+
+# White-noise densities of an ADIS16448 IMU, the defaults of PX4's Gazebo IMU plugin
+# (PX4-SITL_gazebo-classic include/gazebo_imu_plugin.h, from ethz-asl/rotors_simulator), which
+# turns a density into a per-sample standard deviation as density / √dt.
+GYRO_NOISE_DENSITY = 2.0 * 35.0 / 3600.0 / 180.0 * math.pi
+"""rad/s/√Hz, gyroscope white noise (≈ 3.39e-4; 3.4e-3 rad/s per sample at 100 Hz)."""
+ACCEL_NOISE_DENSITY = 2.0 * 2.0e-3
+"""m/s²/√Hz, accelerometer white noise (0.04 m/s² per sample at 100 Hz)."""
+
+# International Standard Atmosphere, troposphere (ICAO Doc 7488 / ISO 2533), geopotential ≈
+# geometric altitude at these heights.
+ISA_P0_PA = 101_325.0  # Pa, sea-level pressure
+ISA_T0_K = 288.15  # K, sea-level temperature
+ISA_LAPSE_K_PER_M = 0.0065  # K/m, temperature lapse rate
+ISA_EXPONENT = 5.25588  # g0·M/(R·L), dimensionless
+
+
+def isa_pressure_hpa(alt_msl_m: float) -> float:
+    """Static pressure in hPa at an altitude above mean sea level (ISA troposphere, < 11 km)."""
+    return ISA_P0_PA * (1.0 - ISA_LAPSE_K_PER_M * alt_msl_m / ISA_T0_K) ** ISA_EXPONENT / 100.0
+
+
+def isa_temperature_c(alt_msl_m: float) -> float:
+    """Air temperature in °C at an altitude above mean sea level (ISA troposphere)."""
+    return ISA_T0_K - ISA_LAPSE_K_PER_M * alt_msl_m - 273.15
+
+
+def world_to_body(state: np.ndarray, v_world) -> np.ndarray:
+    """A world ENU vector (3,) in the body FLU frame of a 12-state: Rᵀ·v."""
+    r = euler_to_rotmat(state[6], state[7], state[8])
+    return r.T @ np.asarray(v_world, np.float64)
+
+
+def magnetometer_flu(state: np.ndarray, field_ned=MAG_NED_GAUSS) -> np.ndarray:
+    """The Earth field (gauss) measured in the body FLU frame of a 12-state."""
+    n, e, d = field_ned
+    return world_to_body(state, (e, n, -d))  # NED → ENU
+
+
+def specific_force_flu(state: np.ndarray, thrust_n: float, mass: float, drag: float, wind_enu) -> np.ndarray:
+    """What an accelerometer measures, m/s² in body FLU: the non-gravitational force over mass.
+    Rotor thrust acts along body +z; air drag, drag·(wind − v), acts in the world frame. At rest
+    or hovering it is (0, 0, +g); in free fall, zero."""
+    f = np.array([0.0, 0.0, thrust_n / mass])
+    if drag:
+        f += world_to_body(state, drag * (np.asarray(wind_enu, np.float64) - state[3:6]) / mass)
+    return f
