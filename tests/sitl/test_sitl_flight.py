@@ -122,3 +122,36 @@ def test_quad_sitl_passes_perturbations_to_the_simulator(tmp_path, capsys):
     assert heavy["mean_error_last_2s_m"] > 0.08, heavy
     assert main(["--wind", "1,2"]) == 2
     assert "three comma-separated numbers" in capsys.readouterr().err
+
+
+def test_killing_the_simulator_mid_flight_latches_the_failsafe_within_150_ms():
+    """The simulator process is killed (SIGKILL) while the node flies in real time; the node notices
+    on its monotonic clock that the state stream fell silent and latches the failsafe."""
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "quadpilot.firmware_sim", "--listen", f"tcp:127.0.0.1:{port}", "--realtime"],
+        stdout=subprocess.DEVNULL,
+    )
+    try:
+        killer = threading.Timer(1.5, sim.kill)  # ~1 s after start-up: mid-flight
+        killer.start()
+        node = Node(NodeConfig(connect=f"tcp:127.0.0.1:{port}", duration_s=10.0, lockstep=False, connect_timeout_s=10))
+        t0 = time.monotonic()
+        log = node.fly(SafetyMonitor(load_policy(SHIPPED_HOVER, "numpy")))
+        assert time.monotonic() - t0 < 5.0
+    finally:
+        sim.kill()
+        sim.wait(5)
+    assert 0 < log.steps < 1000, log.steps
+    assert log.failsafe == "state stream silent"
+    print(f"failsafe after {log.failsafe_latency_s * 1000:.1f} ms of silence, {log.steps} steps flown")
+    assert 0.1 <= log.failsafe_latency_s <= 0.15, log.failsafe_latency_s
+    cmds = np.array(log.commands)
+    assert np.all(np.isfinite(cmds)) and np.all((cmds >= 0) & (cmds <= 1))

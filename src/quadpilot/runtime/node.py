@@ -133,6 +133,7 @@ class Node:
                     if time.monotonic() - last_state_at >= cfg.link_timeout_s:
                         log.failsafe = "state stream silent"
                         log.failsafe_latency_s = time.monotonic() - last_state_at
+                        self._failsafe(mav, log.failsafe, state_time)
                         break
                     continue
                 kind = msg.get_type()
@@ -172,6 +173,21 @@ class Node:
             conn.close()
             log.wall_s = time.monotonic() - start
         return log
+
+    @staticmethod
+    def _failsafe(mav, reason: str, time_usec: int) -> None:
+        """Latch motors off (disarmed, all commands 0) and say why over STATUSTEXT. The episode
+        ends here: re-arming is a new `fly()`, never automatic. If the peer is gone, the sends
+        fail and there is nothing more to do."""
+        from pymavlink import mavutil
+
+        try:
+            mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_CRITICAL, f"failsafe: {reason}".encode()[:50])
+            mav.hil_actuator_controls_send(
+                **wire.actuator_controls_fields(np.zeros(4), max(time_usec, 0), False, False)
+            )
+        except OSError:
+            pass
 
 
 def episode_summary(log: EpisodeLog, target, control_period_s: float, window_s: float = 2.0, tol: float = 0.05):
