@@ -59,6 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True, help="(default)")
     mode.add_argument("--realtime", dest="lockstep", action="store_false", help="Run on the wall clock.")
+    # handled before parsing (main_sim_only has its own flags); listed here for --help
     p.add_argument("--sim-only", action="store_true", help="Serve the simulator only (see above).")
     p.add_argument("--node-only", action="store_true", help="Run the node only, against --connect.")
     p.add_argument("--connect", default=None, help="Simulator address for --node-only (tcp:HOST:PORT).")
@@ -140,10 +141,6 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as e:
         return e.code if isinstance(e.code, int) else 0
     rest = _sim_args(args)
-    if args.sim_only:
-        from quadpilot.firmware_sim.sim import main_sim_only
-
-        return main_sim_only(list(argv if argv is not None else sys.argv[1:]))
     if rest:  # the simulator's own flags (--mass-scale, --wind, --imu-noise, ...): checked here, passed on
         from quadpilot.firmware_sim.sim import UsageError, build_sim_parser, config_from_args
 

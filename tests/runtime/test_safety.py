@@ -46,6 +46,7 @@ class Spy:
         self.info = inner.info
         self.obs_dim = inner.obs_dim
         self.backend = inner.backend
+        self.observation = inner.observation  # the shape check the monitor shares with the policy
         self.seen: list[np.ndarray] = []
         self.resets = 0
 

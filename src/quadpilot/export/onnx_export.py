@@ -226,6 +226,16 @@ def _step_sequences(step, obs: np.ndarray, starts: np.ndarray, hidden: int) -> n
     return out
 
 
+def _torch_step(module):
+    """The recurrent torch module as a NumPy step function (obs, h, c) → (action, h, c)."""
+
+    def step(o, h, c):
+        with torch.inference_mode():
+            return tuple(v.numpy() for v in module(*map(torch.from_numpy, (o, h, c))))
+
+    return step
+
+
 def _runtime_sequences(runtime_policy, obs: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """The runtime's batch-1 policy over (T, B, D), one sequence at a time, reset at starts."""
     t_len, b, _ = obs.shape
@@ -255,13 +265,7 @@ def _golden(policy: TrainedPolicy, module) -> tuple[np.ndarray, np.ndarray]:
     obs, _ = parity_sequences(policy, steps=8, sequences=1, seed=1)
     starts = np.zeros(obs.shape[:2], bool)
     starts[0] = True
-    with torch.inference_mode():
-        act = _step_sequences(
-            lambda o, h, c: tuple(v.numpy() for v in module(*map(torch.from_numpy, (o, h, c)))),
-            obs,
-            starts,
-            module.hidden,
-        )
+    act = _step_sequences(_torch_step(module), obs, starts, module.hidden)
     return obs[:, 0], act[:, 0]
 
 
@@ -386,14 +390,10 @@ def check_parity(checkpoint: str | os.PathLike, onnx_path: str | os.PathLike, n:
         obs, starts = parity_sequences(policy, sequences=max(1, n // 500))
         h = module.hidden
 
-        def torch_step(o, hh, cc):
-            with torch.inference_mode():
-                return tuple(v.numpy() for v in module(*map(torch.from_numpy, (o, hh, cc))))
-
         def ort_step(o, hh, cc):
             return tuple(session.run(None, {INPUT: o, "h_in": hh, "c_in": cc}))
 
-        torch_out = _step_sequences(torch_step, obs, starts, h)
+        torch_out = _step_sequences(_torch_step(module), obs, starts, h)
         outs = {"onnxruntime_session": _step_sequences(ort_step, obs, starts, h)}
         for name, p in backends.items():
             outs[f"runtime_{name}"] = _runtime_sequences(p, obs, starts)

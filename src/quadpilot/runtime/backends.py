@@ -40,8 +40,9 @@ class Policy:
         self.info = info
         self.obs_dim = info.obs_dim
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """Motor commands (4,) float32 for one observation (obs_dim,) or (1, obs_dim)."""
+    def observation(self, obs) -> np.ndarray:
+        """`obs` as the (obs_dim,) array `_act` takes; accepts (obs_dim,), (1, obs_dim) or a
+        sequence, raises ObservationShapeError for anything else."""
         if type(obs) is not np.ndarray:
             obs = np.asarray(obs, np.float32)
         if obs.shape != (self.obs_dim,):
@@ -51,7 +52,11 @@ class Policy:
                     f"({self.obs_dim},) or (1, {self.obs_dim}) float32"
                 )
             obs = obs.reshape(self.obs_dim)
-        return self._act(obs)
+        return obs
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Motor commands (4,) float32 for one observation (obs_dim,) or (1, obs_dim)."""
+        return self._act(self.observation(obs))
 
     def _act(self, x: np.ndarray) -> np.ndarray:
         raise NotImplementedError

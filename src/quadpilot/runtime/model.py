@@ -234,8 +234,8 @@ def _check_io(path, model, info: ModelInfo) -> None:
     if got_in != want_in or got_out != want_out:
         want = f"{list(want_in)} → {list(want_out)}"
         raise _fail(path, f"graph inputs/outputs: expected {want}, found {list(got_in)} → {list(got_out)}")
-    widths = {"obs": info.obs_dim, "action": NUM_MOTORS, "h_in": info.hidden, "c_in": info.hidden}
-    widths.update(h_out=info.hidden, c_out=info.hidden)
+    h = info.hidden
+    widths = {"obs": info.obs_dim, "action": NUM_MOTORS, "h_in": h, "c_in": h, "h_out": h, "c_out": h}
     for v in (*inputs, *model.graph.output):
         dtype = v.type.tensor_type.elem_type
         if dtype != onnx.TensorProto.FLOAT:

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .backends import ObservationShapeError, Policy
+from .backends import Policy
 
 NUM_MOTORS = 4
 
@@ -68,20 +68,17 @@ class SafetyMonitor:
 
         self.policy = policy
         self._policy_act = policy._act
+        self._observation = policy.observation
         info = policy.info
         self.fallback = fallback if fallback is not None else FallbackController(info.vehicle, info.control_period_s)
         self.limits = limits or ObservationLimits()
         self._bound = self.limits.vector(info.layout).tolist()
-        self._dim = info.obs_dim
-        self._shape = (self._dim,)
         sl = info.layout.slices()
         self._pos = sl["pos_error"].start
         rot = sl["rot"].start
         self._r31, self._r32, self._r33 = rot + 6, rot + 7, rot + 8  # row-major R, third row
         self._max_dist_sq = float(info.envelope["max_distance_m"]) ** 2
-        max_tilt = math.radians(float(info.envelope["max_tilt_deg"]))
-        if not 0.0 < max_tilt < math.pi / 2:
-            raise ValueError(f"envelope max_tilt_deg {info.envelope['max_tilt_deg']}: expected a value in (0, 90)")
+        max_tilt = math.radians(float(info.envelope["max_tilt_deg"]))  # in (0°, 90°): read_model checks
         self._sin_max_tilt = math.sin(max_tilt)
         self._cos2_max_tilt = math.cos(max_tilt) ** 2
         self.events: Counter[str] = Counter()
@@ -131,15 +128,7 @@ class SafetyMonitor:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Motor commands (4,) float32 in [0, 1], finite, for one raw observation (obs_dim,)."""
-        if type(obs) is not np.ndarray:
-            obs = np.asarray(obs, np.float32)
-        if obs.shape != self._shape:
-            if obs.shape != (1, self._dim):
-                raise ObservationShapeError(
-                    f"observation has shape {obs.shape}; the policy's layout {self.policy.info.layout.name} expects "
-                    f"({self._dim},) or (1, {self._dim})"
-                )
-            obs = obs.reshape(self._dim)
+        obs = self._observation(obs)
         vals = obs.tolist()
         # written out inline: this runs at the control rate and every call costs (see benchmarks)
         for v, b in zip(vals, self._bound, strict=False):  # lengths equal: checked above
