@@ -29,8 +29,8 @@ from quadpilot.firmware_sim.sim import (
     SimulatorError,
     main_sim_only,
 )
-from quadpilot.firmware_sim.transport import use_mavlink2
 from quadpilot.link import wire
+from quadpilot.link.transport import new_codec
 
 HOME = wire.Home()
 G = 9.81
@@ -80,7 +80,9 @@ def finish(result: dict, timeout: float = 5.0) -> object:
 
 def connect(port: int, proto: str = "tcp"):
     c = mavutil.mavlink_connection(f"{proto}:127.0.0.1:{port}", source_system=255, source_component=190)
-    use_mavlink2(c)
+    # pymavlink's own connection (a PX4-like peer), given a MAVLink 2 codec from the first byte
+    c.mav = new_codec(c, 255, 190)
+    c.WIRE_PROTOCOL_VERSION, c.first_byte = "2.0", False
     return c
 
 

@@ -43,9 +43,18 @@ from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
 from quadpilot.core.reward import RewardConfig, crashed
 from quadpilot.core.start import sample_start_states
 from quadpilot.link import wire
+from quadpilot.link.transport import (
+    Address,
+    Listener,
+    PeerClosed,
+    SigningError,
+    SimulatorError,
+    bad_data_reason,
+    parse_address,
+    read_key,
+)
 
 from . import sensors
-from .transport import Address, Listener, PeerClosed, SimulatorError, parse_address
 
 __all__ = [
     "DEFAULT_WIND_DRAG",
@@ -135,6 +144,9 @@ class SimConfig:
     """Safety bound on the steps of one episode (360 000 × 0.01 s = one hour)."""
     initial_state: tuple[float, ...] | None = None
     """Explicit 12-state (ENU/FLU, SI) every episode starts from, instead of sampling one."""
+    signing_key: bytes | None = field(default=None, repr=False)
+    """MAVLink 2 signing key (32 bytes): sign every message and accept only authentic, fresh,
+    signed ones (`link.transport.SigningMAVLink`); the replay window carries over between episodes."""
 
     def __post_init__(self) -> None:
         parse_address(self.listen)
@@ -159,6 +171,8 @@ class SimConfig:
                 raise ValueError(f"{name} must be an integer ≥ {lo}, got {v!r}")
         if self.episodes is not None and (not isinstance(self.episodes, int) or self.episodes < 1):
             raise ValueError(f"episodes must be an integer ≥ 1 or None (for ever), got {self.episodes!r}")
+        if self.signing_key is not None and (not isinstance(self.signing_key, bytes) or len(self.signing_key) != 32):
+            raise ValueError("signing_key must be 32 bytes")
         if self.initial_state is not None:
             s = np.asarray(self.initial_state, dtype=np.float64)
             if s.shape != (dynamics.STATE_DIM,) or not np.all(np.isfinite(s)):
@@ -292,9 +306,10 @@ class SimStats:
     dropped: dict[str, int] = field(default_factory=dict)
     """Packets thrown away, by reason: garbage (a run of stray bytes without a MAVLink start
     marker, as pymavlink reports it), bad_crc, bad_data (other framing errors), unknown_message_id,
+    signature_unsigned / signature_bad / signature_replayed / signature_stale (signing on),
     parser_error, non_finite_control, out_of_range_control, before_first_state (UDP: an actuator
     message in the datagram that opened the episode), foreign_peer (UDP: a datagram from anyone but
-    the pinned peer)."""
+    the pinned peer), truncated_datagram (UDP: a datagram that ended inside a message)."""
     ignored: dict[str, int] = field(default_factory=dict)
     """Well-formed messages the simulator has no use for, by type."""
     heartbeats: int = 0
@@ -328,6 +343,7 @@ class Simulator:
         self._stop = threading.Event()
         self._reward = RewardConfig()
         self._target = np.asarray(cfg.target, np.float64)
+        self._signing = None  # signing state carried from one episode's link to the next
 
     @property
     def address(self) -> Address | None:
@@ -369,6 +385,9 @@ class Simulator:
                         self._drop("before_first_state", None)
                 if link is None:
                     break
+                if cfg.signing_key is not None:
+                    link.sign(cfg.signing_key, state=self._signing)
+                    self._signing = link.signing_state
                 try:
                     record = self._run_episode(link, k)
                 finally:
@@ -402,7 +421,8 @@ class Simulator:
             n, end = ep.steps_done, "peer_closed"
         if hasattr(link, "foreign_datagrams"):  # UDP
             self._count("foreign_peer", link.foreign_datagrams, ep)
-            link.foreign_datagrams = 0
+            self._count("truncated_datagram", link.truncated_datagrams, ep)
+            link.foreign_datagrams = link.truncated_datagrams = 0
         err = float(np.linalg.norm(plant.state[0:3] - self._target))
         return EpisodeRecord(
             index=k,
@@ -520,7 +540,7 @@ class Simulator:
         """The one receive point: the next message, dispatched; returns it if it is a
         HIL_ACTUATOR_CONTROLS, else None. PeerClosed propagates."""
         try:
-            msg = link.recv_match(blocking=True, timeout=timeout)
+            msg = link.recv(timeout)
         except PeerClosed:
             raise
         except Exception as e:  # a parser failure on hostile bytes must not end the simulator
@@ -536,15 +556,7 @@ class Simulator:
         if kind == "HEARTBEAT":
             self.stats.heartbeats += 1
         elif kind == "BAD_DATA":
-            reason = str(getattr(msg, "reason", "")).lower()
-            if "crc" in reason:
-                self._drop("bad_crc", ep)
-            elif "prefix" in reason:
-                self._drop("garbage", ep)  # one per run of stray bytes, as pymavlink reports them
-            elif "unknown" in reason:
-                self._drop("unknown_message_id", ep)
-            else:
-                self._drop("bad_data", ep)
+            self._drop(bad_data_reason(msg), ep)
         elif kind.startswith("UNKNOWN_"):
             self._drop("unknown_message_id", ep)
         else:
@@ -668,6 +680,12 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         "--lockstep-timeout", type=_positive, default=d.lockstep_timeout_s, help="s, an episode ends after this silence"
     )
     p.add_argument("--max-steps", type=_int_at_least(1), default=d.max_steps, help="step bound of one episode")
+    p.add_argument(
+        "--key",
+        metavar="FILE",
+        default=None,
+        help="MAVLink 2 signing key (32 raw bytes or 64 hex digits): sign, and accept only signed messages",
+    )
     return p
 
 
@@ -689,8 +707,9 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             esc_timeout_s=args.esc_timeout,
             lockstep_timeout_s=args.lockstep_timeout,
             max_steps=args.max_steps,
+            signing_key=read_key(args.key) if args.key else None,
         )
-    except ValueError as e:
+    except (ValueError, SigningError) as e:
         raise UsageError(str(e)) from None
 
 

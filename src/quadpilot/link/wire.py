@@ -51,6 +51,9 @@ LAT_QUANTUM_DEG = 1e-7
 # ENU ↔ NED swaps x and y and negates z; FLU ↔ FRD negates y and z. Both are their own inverse.
 _ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _FLU_FRD = np.diag([1.0, -1.0, -1.0])
+_SWAP_XY = [1, 0, 2]  # ENU ↔ NED: swap the horizontal axes, flip the vertical one
+_FLIP_Z = np.array([1.0, 1.0, -1.0])
+_FLIP_YZ = np.array([1.0, -1.0, -1.0])  # FLU ↔ FRD
 
 
 @dataclass(frozen=True)
@@ -78,8 +81,7 @@ class Home:
 
 def enu_to_ned(v: np.ndarray) -> np.ndarray:
     """(…, 3) ENU → NED (also NED → ENU)."""
-    v = np.asarray(v, np.float64)
-    return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
+    return np.asarray(v, np.float64)[..., _SWAP_XY] * _FLIP_Z
 
 
 ned_to_enu = enu_to_ned
@@ -87,8 +89,7 @@ ned_to_enu = enu_to_ned
 
 def flu_to_frd(v: np.ndarray) -> np.ndarray:
     """(…, 3) body FLU → FRD (also FRD → FLU)."""
-    v = np.asarray(v, np.float64)
-    return np.stack([v[..., 0], -v[..., 1], -v[..., 2]], axis=-1)
+    return np.asarray(v, np.float64) * _FLIP_YZ
 
 
 frd_to_flu = flu_to_frd
@@ -291,3 +292,63 @@ def motors_from_actuator_controls(msg) -> tuple[np.ndarray, bool, bool]:
     for wire, ours in enumerate(MOTOR_MAP):
         motors[ours] = controls[wire]
     return motors, bool(msg.mode & ARMED), bool(msg.flags & LOCKSTEP)
+
+
+# --- ground-station telemetry (autopilot → GCS on UDP 14550) -----------------------------------
+UINT16_UNKNOWN = 65535
+
+
+def attitude_ned_frd(state: np.ndarray) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) rad of body FRD relative to NED, as MAVLink's ATTITUDE reports it, from
+    the 12-state's ENU/FLU Euler angles."""
+    r = rotmat_enu_flu_to_ned_frd(euler_to_rotmat(state[6], state[7], state[8]))
+    roll, pitch, yaw = rotmat_to_euler(r)
+    return float(roll), float(pitch), float(yaw)
+
+
+def attitude_fields(state: np.ndarray, time_boot_ms: int) -> dict:
+    """Keyword arguments of `mav.attitude_send` (ATTITUDE: NED/FRD angles and FRD rates, rad)."""
+    roll, pitch, yaw = attitude_ned_frd(state)
+    rates = flu_to_frd(state[9:12])
+    return {
+        "time_boot_ms": int(time_boot_ms) & 0xFFFFFFFF,
+        "roll": roll,
+        "pitch": pitch,
+        "yaw": yaw,
+        "rollspeed": float(rates[0]),
+        "pitchspeed": float(rates[1]),
+        "yawspeed": float(rates[2]),
+    }
+
+
+def local_position_ned_fields(state: np.ndarray, time_boot_ms: int) -> dict:
+    """Keyword arguments of `mav.local_position_ned_send` (m and m/s, local NED at home)."""
+    p, v = enu_to_ned(state[0:3]), enu_to_ned(state[3:6])
+    return {
+        "time_boot_ms": int(time_boot_ms) & 0xFFFFFFFF,
+        "x": float(p[0]),
+        "y": float(p[1]),
+        "z": float(p[2]),
+        "vx": float(v[0]),
+        "vy": float(v[1]),
+        "vz": float(v[2]),
+    }
+
+
+def global_position_int_fields(state: np.ndarray, home: Home, time_boot_ms: int) -> dict:
+    """Keyword arguments of `mav.global_position_int_send`: lat/lon degE7, alt mm MSL,
+    relative_alt mm above home, vx/vy/vz cm/s NED, hdg cdeg (yaw from north, 0..35999)."""
+    lat, lon, alt = local_to_geodetic(state[0:3], home)
+    v = enu_to_ned(state[3:6])
+    yaw = attitude_ned_frd(state)[2]
+    return {
+        "time_boot_ms": int(time_boot_ms) & 0xFFFFFFFF,
+        "lat": lat,
+        "lon": lon,
+        "alt": alt,
+        "relative_alt": round(float(state[2]) * 1000.0),
+        "vx": _cm(v[0]),
+        "vy": _cm(v[1]),
+        "vz": _cm(v[2]),
+        "hdg": round(math.degrees(yaw) * 100.0) % 36000,
+    }

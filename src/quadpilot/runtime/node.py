@@ -7,10 +7,16 @@ HIL_STATE_QUATERNION and the body rates of the HIL_SENSOR gyro, it builds the ob
 `core.observation.build_observation` (the function training used), runs the policy through the
 `SafetyMonitor`, and sends one HIL_ACTUATOR_CONTROLS (armed, lockstep flag in lockstep mode).
 
-One receive point (`_recv`) dispatching on `get_type()` (never chained type-filtered
-`recv_match` calls, which drop the other types). Link loss is measured on the host's monotonic
-clock, never simulation time: no state for `link_timeout_s` (100 ms) latches a failsafe.
-Timestamps that go backwards or repeat are dropped and counted.
+One receive point (`Link.recv`, one system call per batch of messages) dispatching on
+`get_type()`. Link loss is measured on the host's monotonic clock, never simulation time: no
+state for `link_timeout_s` (100 ms) latches a failsafe (motors off, disarmed, STATUSTEXT), which
+only a new `fly()` clears. Timestamps that go backwards, repeat or jump are dropped and counted.
+Motor commands go to the simulator's address only; optional MAVLink 2 signing (`signing_key`).
+
+Telemetry for a ground station (`gcs`, UDP 127.0.0.1:14550 by default, where QGroundControl and
+MAVProxy listen): HEARTBEAT and SYS_STATUS at 1 Hz, ATTITUDE and LOCAL_POSITION_NED at
+`telemetry_hz`, GLOBAL_POSITION_INT at 5 Hz (simulated time), STATUSTEXT on failsafe and
+fallback. Telemetry is best effort: nobody listening costs nothing and stops nothing.
 """
 
 from __future__ import annotations
@@ -18,14 +24,19 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.observation import build_observation
-from quadpilot.link import wire
+from quadpilot.link import transport, wire
 
 from .safety import SafetyMonitor
+
+NODE_SYSTEM_ID = 1
+NODE_COMPONENT_ID = 1  # MAV_COMP_ID_AUTOPILOT1
 
 
 class NodeError(RuntimeError):
@@ -37,9 +48,11 @@ class NodeConfig:
     """How the node connects and what it flies."""
 
     connect: str = "tcp:127.0.0.1:4560"
-    """pymavlink address of the simulator (tcp:HOST:PORT, or udpout:HOST:PORT)."""
+    """Address of the simulator: tcp:HOST:PORT, or udp:HOST:PORT for a simulator on UDP."""
     target: tuple[float, float, float] = (0.0, 0.0, 2.0)
     """m, local ENU hover target (the training environment's home)."""
+    targets: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None = field(default=None, compare=False)
+    """Moving target: step k → (position (3,), velocity (3,) or None), world ENU. None: `target`."""
     home: wire.Home = field(default_factory=wire.Home)
     """Geodetic origin of the local frame; must match the simulator's."""
     duration_s: float = 5.0
@@ -51,9 +64,15 @@ class NodeConfig:
     connect_timeout_s: float = 10.0
     """s to keep retrying the connection while the simulator starts."""
     heartbeat_period_s: float = 1.0
-    """s between HEARTBEATs, sent from the control loop."""
+    """s between HEARTBEATs to the simulator, sent from the control loop."""
     max_time_jump_s: float = 1.0
     """A state timestamp further ahead than this is dropped as a jump."""
+    gcs: str | None = "udp:127.0.0.1:14550"
+    """Where ground-station telemetry goes (udp:HOST:PORT); None: no telemetry."""
+    telemetry_hz: float = 25.0
+    """ATTITUDE and LOCAL_POSITION_NED rate, per simulated second."""
+    signing_key: bytes | None = field(default=None, repr=False)
+    """MAVLink 2 signing key (32 bytes) for the simulator link; None: unsigned."""
 
 
 @dataclass
@@ -62,6 +81,7 @@ class EpisodeLog:
 
     t: list = field(default_factory=list)
     states: list = field(default_factory=list)
+    targets: list = field(default_factory=list)
     commands: list = field(default_factory=list)
     sources: list = field(default_factory=list)
     latency_s: list = field(default_factory=list)
@@ -69,10 +89,60 @@ class EpisodeLog:
     failsafe: str | None = None
     failsafe_latency_s: float | None = None
     wall_s: float = 0.0
+    telemetry_sent: int = 0
 
     @property
     def steps(self) -> int:
         return len(self.commands)
+
+
+class GroundStation:
+    """Telemetry to a ground station over UDP, rate-limited on simulated time."""
+
+    def __init__(self, address: str, home: wire.Home, control_period_s: float, telemetry_hz: float, tap=None):
+        self.link = transport.connect(address, NODE_SYSTEM_ID, NODE_COMPONENT_ID)
+        self.link.tap = tap
+        self.home = home
+        self.every = max(1, round(1.0 / (telemetry_hz * control_period_s)))
+        self.every_global = max(1, round(0.2 / control_period_s))  # 5 Hz
+        self.every_status = max(1, round(1.0 / control_period_s))  # 1 Hz
+        self.sent = 0
+
+    def heartbeat(self, armed: bool, status: int) -> None:
+        mode = mavlink2.MAV_MODE_FLAG_HIL_ENABLED | (mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
+        self.link.mav.heartbeat_send(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_GENERIC, mode, 0, status)
+        self.sent += 1
+
+    def statustext(self, severity: int, text: str) -> None:
+        self.link.mav.statustext_send(severity, text.encode()[:50])
+        self.sent += 1
+
+    def step(self, k: int, state: np.ndarray, time_usec: int, armed: bool, errors: int, received: int) -> None:
+        ms = time_usec // 1000
+        mav = self.link.mav
+        if k % self.every == 0:
+            mav.attitude_send(**wire.attitude_fields(state, ms))
+            mav.local_position_ned_send(**wire.local_position_ned_fields(state, ms))
+            self.sent += 2
+        if k % self.every_global == 0:
+            mav.global_position_int_send(**wire.global_position_int_fields(state, self.home, ms))
+            self.sent += 1
+        if k % self.every_status == 0:
+            self.heartbeat(armed, mavlink2.MAV_STATE_ACTIVE)
+            sensors = (
+                mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO
+                | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                | mavlink2.MAV_SYS_STATUS_SENSOR_3D_MAG
+                | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+            )
+            drop = min(10000, round(10000 * errors / max(1, errors + received)))
+            mav.sys_status_send(sensors, sensors, sensors, 0, 0, -1, -1, drop, min(errors, 65535), 0, 0, 0, 0)
+            self.sent += 2
+            self.link.recv(0.0)  # drain whatever a GCS sent us (heartbeats); we take no commands
+            self.link._pending.clear()
+
+    def close(self) -> None:
+        self.link.close()
 
 
 class Node:
@@ -81,59 +151,70 @@ class Node:
     def __init__(self, cfg: NodeConfig) -> None:
         self.cfg = cfg
         self._target = np.asarray(cfg.target, np.float64)
+        self._signing = None  # carried over between episodes: a recorded packet cannot be replayed later
 
-    def _connect(self):
-        from pymavlink import mavutil
+    def _connect(self) -> transport.Link:
+        cfg = self.cfg
+        try:
+            link = transport.connect(cfg.connect, NODE_SYSTEM_ID, NODE_COMPONENT_ID, cfg.connect_timeout_s)
+        except (ConnectionError, ValueError) as e:
+            raise NodeError(f"{e}; start one with `quad-sitl --sim-only` or let quad-sitl start it") from None
+        if cfg.signing_key is not None:
+            link.sign(cfg.signing_key, state=self._signing)
+            self._signing = link.signing_state
+        return link
 
-        deadline = time.monotonic() + self.cfg.connect_timeout_s
-        while True:
-            try:
-                return mavutil.mavlink_connection(
-                    self.cfg.connect, source_system=1, source_component=1, autoreconnect=False, retries=0
-                )
-            except (ConnectionRefusedError, OSError) as e:
-                if time.monotonic() > deadline:
-                    raise NodeError(
-                        f"no simulator at {self.cfg.connect} after {self.cfg.connect_timeout_s:g} s ({e}); "
-                        "start one with `quad-sitl --sim-only` or let quad-sitl start it"
-                    ) from None
-                time.sleep(0.05)
+    def _target_at(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        if self.cfg.targets is None:
+            return self._target, None
+        pos, vel = self.cfg.targets(k)
+        return np.asarray(pos, np.float64), None if vel is None else np.asarray(vel, np.float64)
 
-    def fly(self, monitor: SafetyMonitor) -> EpisodeLog:
-        """Fly one episode; the monitor is reset first (new episode: policy state cleared)."""
-        from pymavlink import mavutil
-
+    def fly(self, monitor: SafetyMonitor, tap: Callable[[str, bytes], None] | None = None) -> EpisodeLog:
+        """Fly one episode; the monitor is reset first (new episode: policy state cleared).
+        `tap(direction, raw)` sees every message sent and received (a .tlog writer)."""
         cfg = self.cfg
         log = EpisodeLog()
         monitor.reset()
-        conn = self._connect()
-        mav = conn.mav
-        steps = round(cfg.duration_s / monitor.policy.info.control_period_s)
+        period = monitor.policy.info.control_period_s
+        link = self._connect()
+        link.tap = tap
+        gcs = None
+        if cfg.gcs:
+            try:
+                gcs = GroundStation(cfg.gcs, cfg.home, period, cfg.telemetry_hz, tap)
+            except (OSError, ValueError) as e:
+                log.dropped[f"gcs_unavailable: {e}"] += 1
+        mav = link.mav
+        steps = round(cfg.duration_s / period)
         start = time.monotonic()
         last_state_at = start
         last_heartbeat = -math.inf
         state: np.ndarray | None = None
         state_time = -1
         last_sensor_time = -1
+        received = 0
+        source = "policy"
         try:
             while log.steps < steps:
                 now = time.monotonic()
                 if now - last_heartbeat >= cfg.heartbeat_period_s:
                     mav.heartbeat_send(
-                        mavutil.mavlink.MAV_TYPE_QUADROTOR,
-                        mavutil.mavlink.MAV_AUTOPILOT_GENERIC,
-                        mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
+                        mavlink2.MAV_TYPE_QUADROTOR,
+                        mavlink2.MAV_AUTOPILOT_GENERIC,
+                        mavlink2.MAV_MODE_FLAG_SAFETY_ARMED,
                         0,
-                        mavutil.mavlink.MAV_STATE_ACTIVE,
+                        mavlink2.MAV_STATE_ACTIVE,
                     )
+                    link.flush()
                     last_heartbeat = now
                 wait = cfg.link_timeout_s - (now - last_state_at)
-                msg = conn.recv_match(blocking=True, timeout=max(wait, 0.0)) if wait > 0 else None
+                msg = link.recv(wait) if wait > 0 else None
                 if msg is None:
                     if time.monotonic() - last_state_at >= cfg.link_timeout_s:
                         log.failsafe = "state stream silent"
                         log.failsafe_latency_s = time.monotonic() - last_state_at
-                        self._failsafe(mav, log.failsafe, state_time)
+                        self._failsafe(link, gcs, log.failsafe, state_time)
                         break
                     continue
                 kind = msg.get_type()
@@ -147,47 +228,74 @@ class Node:
                     state = wire.state_from_hil_state_quaternion(msg, cfg.home)
                     state_time = msg.time_usec
                     last_state_at = time.monotonic()
+                    received += 1
                 elif kind == "HIL_SENSOR":
-                    received = time.perf_counter()
+                    t_in = time.perf_counter()
                     if state is None or msg.time_usec != state_time or msg.time_usec == last_sensor_time:
                         log.dropped["sensor_without_state"] += 1
                         continue
                     last_sensor_time = msg.time_usec
+                    received += 1
                     s = state.copy()
                     s[9:12] = wire.gyro_from_hil_sensor(msg)
-                    obs = build_observation(s[None], self._target)[0]
+                    k = log.steps
+                    target, target_vel = self._target_at(k)
+                    obs = build_observation(s[None], target, target_vel)[0]
                     cmd = monitor.act(obs)
                     mav.hil_actuator_controls_send(
                         **wire.actuator_controls_fields(cmd, msg.time_usec, True, cfg.lockstep)
                     )
-                    log.latency_s.append(time.perf_counter() - received)
+                    link.flush()
+                    log.latency_s.append(time.perf_counter() - t_in)
                     log.t.append(msg.time_usec * 1e-6)
                     log.states.append(state)
+                    log.targets.append(target)
                     log.commands.append(cmd)
                     log.sources.append(monitor.source)
+                    if gcs is not None:
+                        if monitor.source != source:
+                            source = monitor.source
+                            gcs.statustext(
+                                mavlink2.MAV_SEVERITY_WARNING,
+                                f"safety: {source} flying ({', '.join(sorted(monitor.events)) or 'policy'})",
+                            )
+                        gcs.step(k, state, msg.time_usec, True, sum(log.dropped.values()), received)
                 elif kind == "BAD_DATA":
-                    log.dropped["bad_data"] += 1
-                elif kind not in ("HIL_GPS", "HEARTBEAT"):
+                    log.dropped[transport.bad_data_reason(msg)] += 1
+                elif kind.startswith("UNKNOWN_"):
+                    log.dropped["unknown_message_id"] += 1
+                elif kind not in ("HIL_GPS", "HEARTBEAT", "STATUSTEXT"):
                     log.dropped[f"unexpected_{kind.lower()}"] += 1
+        except transport.PeerClosed:
+            if log.steps < steps:
+                log.failsafe = "simulator closed the link"
+                log.failsafe_latency_s = time.monotonic() - last_state_at
+                self._failsafe(link, gcs, log.failsafe, state_time)
         finally:
-            conn.close()
+            link.close()
+            if gcs is not None:
+                log.telemetry_sent = gcs.sent
+                gcs.close()
             log.wall_s = time.monotonic() - start
         return log
 
     @staticmethod
-    def _failsafe(mav, reason: str, time_usec: int) -> None:
-        """Latch motors off (disarmed, all commands 0) and say why over STATUSTEXT. The episode
-        ends here: re-arming is a new `fly()`, never automatic. If the peer is gone, the sends
-        fail and there is nothing more to do."""
-        from pymavlink import mavutil
-
+    def _failsafe(link: transport.Link, gcs: GroundStation | None, reason: str, time_usec: int) -> None:
+        """Latch motors off (disarmed, all commands 0) and say why over STATUSTEXT, to the
+        simulator and the ground station. The episode ends here: re-arming is a new `fly()`,
+        never automatic. If the peer is gone, the sends fail and there is nothing more to do."""
+        text = f"failsafe: {reason}, motors off"
         try:
-            mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_CRITICAL, f"failsafe: {reason}".encode()[:50])
-            mav.hil_actuator_controls_send(
+            link.mav.statustext_send(mavlink2.MAV_SEVERITY_CRITICAL, text.encode()[:50])
+            link.mav.hil_actuator_controls_send(
                 **wire.actuator_controls_fields(np.zeros(4), max(time_usec, 0), False, False)
             )
-        except OSError:
+            link.flush()
+        except (OSError, transport.PeerClosed):
             pass
+        if gcs is not None:
+            gcs.statustext(mavlink2.MAV_SEVERITY_CRITICAL, text)
+            gcs.heartbeat(False, mavlink2.MAV_STATE_CRITICAL)
 
 
 def episode_summary(log: EpisodeLog, target, control_period_s: float, window_s: float = 2.0, tol: float = 0.05):
@@ -198,7 +306,8 @@ def episode_summary(log: EpisodeLog, target, control_period_s: float, window_s: 
     if not log.states:
         return {"steps": 0, "success": False, "crashed": False, "rms_error_m": math.nan, "final_distance_m": math.nan}
     states = np.asarray(log.states)
-    err = states[:, 0:3] - np.asarray(target)
+    targets = np.asarray(log.targets) if log.targets else np.asarray(target)
+    err = states[:, 0:3] - targets
     dist = np.linalg.norm(err, axis=1)
     crash = bool(crashed(states, err, RewardConfig()).any())
     k = max(1, round(window_s / control_period_s))
