@@ -10,7 +10,8 @@ HEAVY = ("torch", "gymnasium", "stable_baselines3", "quadpilot.train", "quadpilo
 
 
 @pytest.mark.parametrize(
-    "module", ["quadpilot", "quadpilot.core", "quadpilot.link", "quadpilot.runtime", "quadpilot.firmware_sim"]
+    "module",
+    ["quadpilot", "quadpilot.core", "quadpilot.link", "quadpilot.runtime", "quadpilot.firmware_sim", "quadpilot.viz"],
 )
 def test_light_packages_do_not_import_heavy_ones(module):
     code = f"import sys, {module}; print(sorted(m for m in {HEAVY!r} if m in sys.modules))"

@@ -18,7 +18,6 @@ import math
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +62,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sim-only", action="store_true", help="Serve the simulator only (see above).")
     p.add_argument("--node-only", action="store_true", help="Run the node only, against --connect.")
     p.add_argument("--connect", default=None, help="Simulator address for --node-only (tcp:HOST:PORT).")
+    p.add_argument(
+        "--listen", default=None, help="Where the simulator listens (tcp:HOST:PORT). Default: a free loopback port."
+    )
     p.add_argument("--json", type=Path, metavar="OUT", help="Write the summary as JSON.")
+    p.add_argument(
+        "--plot", type=Path, metavar="OUT.png", help="Draw the 3-D paths and position/attitude/motor traces."
+    )
+    p.add_argument(
+        "--video", type=Path, metavar="OUT.gif", help="Render the first episode (.gif, or .mp4 with ffmpeg)."
+    )
+    p.add_argument(
+        "--tlog", type=Path, metavar="OUT.tlog", help="Log every MAVLink message (pymavlink's mavlogdump.py reads it)."
+    )
+    p.add_argument(
+        "--gcs",
+        default="udp:127.0.0.1:14550",
+        metavar="ADDR",
+        help="Ground-station telemetry destination (QGroundControl/MAVProxy listen on UDP 14550); 'none': off. "
+        "Default: udp:127.0.0.1:14550",
+    )
+    p.add_argument(
+        "--key",
+        type=Path,
+        metavar="FILE",
+        help="MAVLink 2 signing key (32 raw bytes or 64 hex digits) for the simulator link, both sides.",
+    )
     sim = p.add_argument_group("simulator (passed on to the simulator process; see quad-sitl --sim-only --help)")
     for flag, metavar in SIM_FLAGS.items():
         if metavar is None:
@@ -82,6 +106,30 @@ def _sim_args(args: argparse.Namespace) -> list[str]:
         elif metavar is not None and value is not None:
             out += [flag, value]
     return out
+
+
+def _start_simulator(cmd: list[str], timeout_s: float = 30.0):
+    """Start the simulator process and wait until it listens: (process, address it listens on),
+    or (None, why not) if it exits first (e.g. its port is taken) or stays silent for `timeout_s`."""
+    import select
+    import threading
+
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
+    line = proc.stdout.readline() if ready else ""
+    if "listening on" not in line:
+        proc.kill()
+        err = proc.stderr.read().strip() if proc.wait(5) is not None else ""
+        last = err.splitlines()[-1] if err else f"no answer within {timeout_s:g} s"
+        return None, last.removeprefix("quad-sitl: error: ")
+
+    def drain(stream):  # per-episode lines: read them so the pipe never fills and blocks it
+        for _ in stream:
+            pass
+
+    threading.Thread(target=drain, args=(proc.stdout,), daemon=True).start()
+    threading.Thread(target=drain, args=(proc.stderr,), daemon=True).start()
+    return proc, line.split("listening on ", 1)[1].split()[0]
 
 
 def summarise(logs, target, period: float) -> dict:
@@ -110,6 +158,7 @@ def summarise(logs, target, period: float) -> dict:
         "control_latency_p99_us": float(np.percentile(lat, 99)) if lat.size else math.nan,
         "failsafe_events": sum(1 for log in logs if log.failsafe),
         "fallback_steps": int(fallback),
+        "telemetry_messages": int(sum(log.telemetry_sent for log in logs)),
         "packets_dropped": dropped,
         "per_episode": eps,
     }
@@ -173,6 +222,30 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    key = None
+    if args.key is not None:
+        from quadpilot.link.transport import SigningError, read_key
+
+        try:
+            key = read_key(args.key)
+        except SigningError as e:
+            print(f"quad-sitl: error: {e}", file=sys.stderr)
+            return 2
+    for out in (args.json, args.plot, args.video, args.tlog):
+        if out is not None and not out.parent.is_dir():
+            print(f"quad-sitl: error: {out}: directory {out.parent} does not exist", file=sys.stderr)
+            return 2
+    if args.plot is not None or args.video is not None:  # refuse before flying, not after
+        from quadpilot.viz import VizUnavailable, check_plot_output, check_video_output
+
+        try:
+            if args.plot is not None:
+                check_plot_output(args.plot)
+            if args.video is not None:
+                check_video_output(args.video)
+        except (ValueError, VizUnavailable) as e:
+            print(f"quad-sitl: error: {e}", file=sys.stderr)
+            return 2
     monitor = SafetyMonitor(policy)
     sim = None
     if args.node_only:
@@ -181,35 +254,35 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         address = args.connect
     else:
-        port = _free_port()
-        address = f"tcp:127.0.0.1:{port}"
-        cmd = [
-            sys.executable,
-            "-m",
-            "quadpilot.firmware_sim",
-            "--sim-only",
-            "--listen",
-            address,
-            "--episodes",
-            str(args.episodes),
-            "--seed",
-            str(args.seed),
-            "--lockstep" if args.lockstep else "--realtime",
-            *rest,
-        ]
-        sim = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
-    node = Node(NodeConfig(connect=address, duration_s=args.duration, lockstep=args.lockstep))
+        listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
+        cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", listen]
+        cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed)]
+        cmd += ["--lockstep" if args.lockstep else "--realtime", *rest]
+        if args.key is not None:
+            cmd += ["--key", str(args.key)]
+        sim, address = _start_simulator(cmd)
+        if sim is None:
+            print(f"quad-sitl: error: the simulator did not start: {address}", file=sys.stderr)
+            return 1
+    gcs = None if args.gcs.lower() == "none" else args.gcs
+    node = Node(NodeConfig(connect=address, duration_s=args.duration, lockstep=args.lockstep, gcs=gcs, signing_key=key))
+    tlog = None
+    if args.tlog is not None:
+        from quadpilot.link.tlog import TlogWriter
+
+        tlog = TlogWriter(args.tlog)
     logs = []
     try:
         for _ in range(args.episodes):
-            logs.append(node.fly(monitor))
-            time.sleep(0.02)  # let the simulator finish the episode and listen again
+            logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap))
     except NodeError as e:
         print(f"quad-sitl: error: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("quad-sitl: interrupted; summary of the episodes flown so far", file=sys.stderr)
     finally:
+        if tlog is not None:
+            tlog.close()
         if sim is not None:
             sim.terminate()
             try:
@@ -223,6 +296,40 @@ def main(argv: list[str] | None = None) -> int:
     print_summary(summary, policy_path)
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2) + "\n")
+    if tlog is not None:
+        print(f"  MAVLink log             {args.tlog} ({tlog.messages:,} messages; read it with mavlogdump.py)")
+    return _draw(args, logs, policy.info.control_period_s)
+
+
+def _traces(logs):
+    from quadpilot.viz import FlightTrace
+
+    return [
+        FlightTrace.from_episode_log(log, np.asarray(log.targets), label=f"episode {i}")
+        for i, log in enumerate(logs)
+        if log.states
+    ]
+
+
+def _draw(args, logs, period: float) -> int:
+    if args.plot is None and args.video is None:
+        return 0
+    from quadpilot.viz import VizUnavailable, plot_flight, render_flight_video
+
+    traces = _traces(logs)
+    if not traces:
+        print("quad-sitl: nothing flown, nothing to draw", file=sys.stderr)
+        return 1
+    try:
+        if args.plot is not None:
+            plot_flight(traces, args.plot, title=f"quad-sitl: {args.policy or SHIPPED_HOVER}")
+            print(f"  plot                    {args.plot}")
+        if args.video is not None:
+            render_flight_video(traces[0], args.video)
+            print(f"  video                   {args.video}")
+    except VizUnavailable as e:
+        print(f"quad-sitl: error: {e}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -285,6 +285,14 @@ class EpisodeRecord:
     final_state: tuple[float, ...]
     dropped: dict[str, int]
     esc_timeouts: int
+    commands: int = 0
+    """HIL_ACTUATOR_CONTROLS messages applied (armed and valid, or disarmed: motors 0)."""
+    esc_cut_silence_s: float | None = None
+    """Realtime: how long commands had been silent when the ESCs cut the motors (None: never)."""
+    period_jitter_ms: tuple[float, float, float] | None = None
+    """Realtime: |step period − dt| in ms over the episode, (p50, p99, max)."""
+    overruns: int = 0
+    """Realtime: steps that started more than one dt late."""
 
     def summary(self) -> str:
         dropped = sum(self.dropped.values())
@@ -309,7 +317,8 @@ class SimStats:
     signature_unsigned / signature_bad / signature_replayed / signature_stale (signing on),
     parser_error, non_finite_control, out_of_range_control, before_first_state (UDP: an actuator
     message in the datagram that opened the episode), foreign_peer (UDP: a datagram from anyone but
-    the pinned peer), truncated_datagram (UDP: a datagram that ended inside a message)."""
+    the pinned peer), truncated_datagram (UDP: a datagram that ended inside a message),
+    oversized_datagram (UDP: longer than link.transport.MAX_DATAGRAM, dropped unparsed)."""
     ignored: dict[str, int] = field(default_factory=dict)
     """Well-formed messages the simulator has no use for, by type."""
     heartbeats: int = 0
@@ -327,6 +336,10 @@ class _Episode:
         self.index, self.peer = index, peer
         self.dropped: dict[str, int] = {}
         self.esc_timeouts = 0
+        self.esc_cut_silence_s: float | None = None
+        self.commands = 0
+        self.step_times: list[float] = []
+        self.overruns = 0
         self.steps_done = 0
         self.first_crash_step: int | None = None
 
@@ -422,8 +435,13 @@ class Simulator:
         if hasattr(link, "foreign_datagrams"):  # UDP
             self._count("foreign_peer", link.foreign_datagrams, ep)
             self._count("truncated_datagram", link.truncated_datagrams, ep)
-            link.foreign_datagrams = link.truncated_datagrams = 0
+            self._count("oversized_datagram", link.oversized_datagrams, ep)
+            link.foreign_datagrams = link.truncated_datagrams = link.oversized_datagrams = 0
         err = float(np.linalg.norm(plant.state[0:3] - self._target))
+        jitter = None
+        if len(ep.step_times) > 2:
+            dev = np.abs(np.diff(ep.step_times) - cfg.dt) * 1e3
+            jitter = (float(np.percentile(dev, 50)), float(np.percentile(dev, 99)), float(dev.max()))
         return EpisodeRecord(
             index=k,
             peer=ep.peer,
@@ -438,6 +456,10 @@ class Simulator:
             final_state=tuple(float(v) for v in plant.state),
             dropped=dict(ep.dropped),
             esc_timeouts=ep.esc_timeouts,
+            commands=ep.commands,
+            esc_cut_silence_s=ep.esc_cut_silence_s,
+            period_jitter_ms=jitter,
+            overruns=ep.overruns,
         )
 
     def _advance(self, link, plant: Plant, command: np.ndarray, n: int, rng, ep: _Episode) -> int:
@@ -500,12 +522,16 @@ class Simulator:
             if not cut and silent > cfg.esc_timeout_s:
                 cut, held = True, np.zeros(dynamics.NUM_MOTORS)
                 ep.esc_timeouts += 1
+                if ep.esc_cut_silence_s is None:
+                    ep.esc_cut_silence_s = silent
                 self.stats.esc_timeouts += 1
                 log.info("episode %d: no actuator message for %.3f s, motors cut", ep.index, silent)
+            ep.step_times.append(time.monotonic())
             n = self._advance(link, plant, held, n, rng, ep)
             tick += cfg.dt
             if time.monotonic() - tick > cfg.dt:  # more than a step behind: do not burst to catch up
                 self.stats.overruns += 1
+                ep.overruns += 1
                 tick = time.monotonic() + cfg.dt
         return n, "max_steps"
 
@@ -571,6 +597,7 @@ class Simulator:
             self._drop("bad_data", ep)
             return None
         if not armed:
+            ep.commands += 1
             return np.zeros(dynamics.NUM_MOTORS)
         if not np.all(np.isfinite(motors)):
             self._drop("non_finite_control", ep)
@@ -578,6 +605,7 @@ class Simulator:
         if np.any(motors < 0.0) or np.any(motors > 1.0):
             self._drop("out_of_range_control", ep)
             return None
+        ep.commands += 1
         return motors
 
     def _drop(self, reason: str, ep: _Episode | None) -> None:
@@ -670,6 +698,13 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         help=f"N·s/m linear drag (default: preset's, or {DEFAULT_WIND_DRAG} with wind)",
     )
     p.add_argument("--imu-noise", action="store_true", help="white noise on gyro and accelerometer")
+    p.add_argument(
+        "--rate",
+        type=_positive,
+        default=1.0 / d.dt,
+        metavar="HZ",
+        help=f"simulation steps per second (default {1 / d.dt:g})",
+    )
     p.add_argument("--seed", type=_int_at_least(0), default=d.seed, help="seed of the start states and the noise")
     p.add_argument("--episodes", type=_int_at_least(1), default=None, help="serve this many connections, then exit")
     p.add_argument("--gps-every", type=_int_at_least(1), default=d.gps_every, help="steps between HIL_GPS messages")
@@ -680,6 +715,7 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         "--lockstep-timeout", type=_positive, default=d.lockstep_timeout_s, help="s, an episode ends after this silence"
     )
     p.add_argument("--max-steps", type=_int_at_least(1), default=d.max_steps, help="step bound of one episode")
+    p.add_argument("--json", metavar="OUT", default=None, help="write the stats and episode records as JSON on exit")
     p.add_argument(
         "--key",
         metavar="FILE",
@@ -700,6 +736,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             wind=args.wind,
             drag=args.drag,
             imu_noise=args.imu_noise,
+            dt=1.0 / args.rate,
             seed=args.seed,
             episodes=args.episodes,
             gps_every=args.gps_every,
@@ -713,12 +750,23 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         raise UsageError(str(e)) from None
 
 
+def _write_stats(path: str, stats: SimStats) -> None:
+    import json
+
+    try:
+        with open(path, "w") as f:
+            json.dump(dataclasses.asdict(stats), f, indent=1)
+    except OSError as e:
+        print(f"quad-sitl: cannot write {path}: {e.strerror or e}", file=sys.stderr)
+
+
 def main_sim_only(argv: list[str] | None = None, prog: str = "quad-sitl") -> int:
     """`quad-sitl --sim-only [...]`: serve episodes, one line per episode on stdout. Returns the
     exit code: 0 done, 1 the simulator could not run (e.g. port taken), 2 bad flags, 130 Ctrl-C."""
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        cfg = config_from_args(build_sim_parser(f"{prog} --sim-only").parse_args(argv))
+        args = build_sim_parser(f"{prog} --sim-only").parse_args(argv)
+        cfg = config_from_args(args)
     except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
     except UsageError as e:
@@ -738,6 +786,8 @@ def main_sim_only(argv: list[str] | None = None, prog: str = "quad-sitl") -> int
         return 130
     finally:
         sim.close()
+        if args.json:
+            _write_stats(args.json, sim.stats)
     dropped = sum(stats.dropped.values())
     print(f"{prog}: served {stats.episodes} episodes, {stats.steps} steps, dropped {dropped} packets", flush=True)
     return 0

@@ -41,6 +41,9 @@ SEND_TIMEOUT_S = 1.0
 """s, a TCP peer that has not taken one step's messages in this long is treated as gone."""
 READ_SIZE = 65536
 """Bytes read per system call (a datagram's maximum)."""
+MAX_DATAGRAM = 4096
+"""Bytes: a longer UDP datagram is dropped unparsed. MAVLink 2 frames are at most 280 bytes and
+simulators send one or a few per datagram; parsing 64 KiB of junk in Python would stall a step."""
 SIGNING_EPOCH_S = 1420070400
 """MAVLink 2 signing timestamps count 10 µs units since 2015-01-01 00:00 UTC."""
 
@@ -320,6 +323,7 @@ class DatagramLink(Link):
         self.last_sender: tuple | None = None
         self.foreign_datagrams = 0
         self.truncated_datagrams = 0
+        self.oversized_datagrams = 0
         if peer is not None:
             self.pin(peer)
 
@@ -333,6 +337,9 @@ class DatagramLink(Link):
                 return
             if self.peer is not None and sender[:2] != self.peer[:2]:
                 self.foreign_datagrams += 1
+                continue
+            if len(data) > MAX_DATAGRAM:
+                self.oversized_datagrams += 1
                 continue
             self.last_sender = sender
             self._parse(data)

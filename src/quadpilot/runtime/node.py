@@ -73,6 +73,8 @@ class NodeConfig:
     """ATTITUDE and LOCAL_POSITION_NED rate, per simulated second."""
     signing_key: bytes | None = field(default=None, repr=False)
     """MAVLink 2 signing key (32 bytes) for the simulator link; None: unsigned."""
+    control_period_s: float | None = None
+    """s per simulator step, if it differs from the policy's (a timing test at another rate)."""
 
 
 @dataclass
@@ -85,6 +87,8 @@ class EpisodeLog:
     commands: list = field(default_factory=list)
     sources: list = field(default_factory=list)
     latency_s: list = field(default_factory=list)
+    wall: list = field(default_factory=list)
+    """perf_counter() at each step's HIL_SENSOR: the loop's period and jitter."""
     dropped: Counter = field(default_factory=Counter)
     failsafe: str | None = None
     failsafe_latency_s: float | None = None
@@ -176,7 +180,7 @@ class Node:
         cfg = self.cfg
         log = EpisodeLog()
         monitor.reset()
-        period = monitor.policy.info.control_period_s
+        period = cfg.control_period_s or monitor.policy.info.control_period_s
         link = self._connect()
         link.tap = tap
         gcs = None
@@ -247,6 +251,7 @@ class Node:
                     )
                     link.flush()
                     log.latency_s.append(time.perf_counter() - t_in)
+                    log.wall.append(t_in)
                     log.t.append(msg.time_usec * 1e-6)
                     log.states.append(state)
                     log.targets.append(target)
@@ -272,6 +277,11 @@ class Node:
                 log.failsafe_latency_s = time.monotonic() - last_state_at
                 self._failsafe(link, gcs, log.failsafe, state_time)
         finally:
+            for name, reason in (("foreign_datagrams", "foreign_peer"), ("truncated_datagrams", "truncated_datagram")):
+                if getattr(link, name, 0):
+                    log.dropped[reason] += getattr(link, name)
+            if getattr(link, "oversized_datagrams", 0):
+                log.dropped["oversized_datagram"] += link.oversized_datagrams
             link.close()
             if gcs is not None:
                 log.telemetry_sent = gcs.sent

@@ -1,0 +1,30 @@
+"""Drawings of recorded flights: a summary PNG (`plot_flight`) and an animation
+(`render_flight_video`) from `FlightTrace`s recorded by quad-sitl or an in-process evaluation.
+
+Imports NumPy and `quadpilot.core` only; matplotlib is imported inside the drawing functions, so
+`import quadpilot.viz` works without it and the functions raise `VizUnavailable` with what to
+install. Figures use their own Agg canvas: no pyplot, no `matplotlib.use`, no global state.
+
+    from quadpilot.viz import FlightTrace, plot_flight, render_flight_video
+    traces = [FlightTrace.from_episode_log(log, target=(0, 0, 2)) for log in logs]
+    plot_flight(traces, "flight.png", title="hover, 10 episodes")
+    render_flight_video(traces[0], "flight.gif")
+"""
+
+from ._mpl import VizUnavailable
+from .geometry import body_points, display_arm
+from .plot import check_plot_output, plot_flight
+from .trace import FlightTrace
+from .video import check_video_output, frame_indices, render_flight_video
+
+__all__ = [
+    "FlightTrace",
+    "VizUnavailable",
+    "body_points",
+    "check_plot_output",
+    "check_video_output",
+    "display_arm",
+    "frame_indices",
+    "plot_flight",
+    "render_flight_video",
+]
