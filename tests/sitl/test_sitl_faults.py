@@ -81,9 +81,9 @@ def test_killing_the_node_cuts_the_motors(proto):
     port = sim.bind().port
     thread = threading.Thread(target=sim.serve, daemon=True)
     thread.start()
+    node_cmd = [sys.executable, "-m", "quadpilot.sitl", "--node-only", "--connect", f"{proto}:127.0.0.1:{port}"]
     node = subprocess.Popen(
-        [sys.executable, "-m", "quadpilot.sitl", "--node-only", "--connect", f"{proto}:127.0.0.1:{port}"]
-        + ["--realtime", "--duration", "20", "--episodes", "1", "--gcs", "none"],
+        [*node_cmd, "--realtime", "--duration", "20", "--episodes", "1", "--gcs", "none"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
