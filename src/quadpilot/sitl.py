@@ -52,7 +52,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("policy", nargs="?", type=Path, help=f"ONNX file from quad-export. Default: {SHIPPED_HOVER}")
     p.add_argument("--episodes", type=int, default=10, metavar="N", help="Episodes to fly. Default: 10")
-    p.add_argument("--duration", type=float, default=5.0, metavar="S", help="Seconds per episode. Default: 5")
+    p.add_argument("--task", choices=("hover", "waypoint", "circle"), help="What to fly. Default: the policy's task.")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="Seconds per episode. Default: 5 (circle: two laps, 12.6 s; success is judged on the second)",
+    )
     p.add_argument("--seed", type=int, default=0, help="Seed of the start states. Default: 0")
     p.add_argument("--backend", choices=("onnxruntime", "numpy"), default="numpy", help="Default: numpy")
     mode = p.add_mutually_exclusive_group()
@@ -132,10 +139,10 @@ def _start_simulator(cmd: list[str], timeout_s: float = 30.0):
     return proc, line.split("listening on ", 1)[1].split()[0]
 
 
-def summarise(logs, target, period: float) -> dict:
+def summarise(logs, period: float, task: str = "hover") -> dict:
     from quadpilot.runtime.node import episode_summary
 
-    eps = [episode_summary(log, target, period) for log in logs]
+    eps = [episode_summary(log, period, task) for log in logs]
     lat = np.concatenate([np.asarray(log.latency_s) for log in logs]) * 1e6 if logs else np.zeros(0)
     steps = sum(log.steps for log in logs)
     wall = sum(log.wall_s for log in logs)
@@ -145,7 +152,7 @@ def summarise(logs, target, period: float) -> dict:
             dropped[k] = dropped.get(k, 0) + v
     fallback = sum(sum(1 for s in log.sources if s != "policy") for log in logs)
     finite = [e for e in eps if math.isfinite(e["rms_error_m"])]
-    return {
+    out = {
         "episodes": len(eps),
         "success_rate": float(np.mean([e["success"] for e in eps])) if eps else math.nan,
         "crashes": int(sum(e["crashed"] for e in eps)),
@@ -162,6 +169,10 @@ def summarise(logs, target, period: float) -> dict:
         "packets_dropped": dropped,
         "per_episode": eps,
     }
+    if task == "circle" and finite:
+        out["radial_rms_m"] = float(np.mean([e["radial_rms_m"] for e in finite]))
+        out["speed_error_mps"] = float(np.mean([e["speed_error_mps"] for e in finite]))
+    return out
 
 
 def print_summary(s: dict, policy: Path) -> None:
@@ -171,6 +182,11 @@ def print_summary(s: dict, policy: Path) -> None:
         f"  position error          RMS {s['position_rms_error_m'] * 100:.2f} cm, last 2 s mean "
         f"{s['mean_error_last_2s_m'] * 100:.2f} cm, final {s['final_distance_m'] * 100:.2f} cm"
     )
+    if "radial_rms_m" in s:
+        print(
+            f"  circle (second lap)     radial RMS {s['radial_rms_m'] * 100:.2f} cm, "
+            f"speed error {s['speed_error_mps'] * 100:.2f} cm/s"
+        )
     print(
         f"  control-loop latency    p50 {s['control_latency_p50_us']:.0f} µs, p99 {s['control_latency_p99_us']:.0f} µs"
     )
@@ -204,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 2
-    if args.episodes < 1 or not (args.duration > 0):
+    if args.episodes < 1 or not (args.duration is None or args.duration > 0):
         print("quad-sitl: error: --episodes must be ≥ 1 and --duration > 0", file=sys.stderr)
         return 2
     from quadpilot.runtime import ModelContractError, SafetyMonitor, load_policy
@@ -216,12 +232,23 @@ def main(argv: list[str] | None = None) -> int:
     except (ModelContractError, ValueError) as e:
         print(f"quad-sitl: error: {e}", file=sys.stderr)
         return 2
-    if policy.info.task != "hover":
+    from quadpilot.core.mission import default_duration_s, plan_episode
+    from quadpilot.core.observation import TRACK_LAYOUT
+
+    task = args.task or policy.info.task
+    if (task == "circle") != (policy.info.layout.name == TRACK_LAYOUT.name):
         print(
-            f"quad-sitl: error: {policy_path} is a {policy.info.task} policy; SITL flies hover policies so far",
+            f"quad-sitl: error: {policy_path} observes the {policy.info.layout.name} layout "
+            f"({policy.info.task} policy); --task {task} needs "
+            + (
+                "a circle (track layout) policy, e.g. models/circle/policy.onnx"
+                if task == "circle"
+                else "a hover-layout policy"
+            ),
             file=sys.stderr,
         )
         return 2
+    duration = args.duration or default_duration_s(task)
     key = None
     if args.key is not None:
         from quadpilot.link.transport import SigningError, read_key
@@ -256,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
         cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", listen]
-        cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed)]
+        cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed), "--task", task]
         cmd += ["--lockstep" if args.lockstep else "--realtime", *rest]
         if args.key is not None:
             cmd += ["--key", str(args.key)]
@@ -265,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"quad-sitl: error: the simulator did not start: {address}", file=sys.stderr)
             return 1
     gcs = None if args.gcs.lower() == "none" else args.gcs
-    node = Node(NodeConfig(connect=address, duration_s=args.duration, lockstep=args.lockstep, gcs=gcs, signing_key=key))
+    node = Node(NodeConfig(connect=address, duration_s=duration, lockstep=args.lockstep, gcs=gcs, signing_key=key))
     tlog = None
     if args.tlog is not None:
         from quadpilot.link.tlog import TlogWriter
@@ -273,8 +300,9 @@ def main(argv: list[str] | None = None) -> int:
         tlog = TlogWriter(args.tlog)
     logs = []
     try:
-        for _ in range(args.episodes):
-            logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap))
+        for k in range(args.episodes):
+            mission = plan_episode(task, args.seed, k, policy.info.control_period_s)
+            logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap, targets=mission.target_at))
     except NodeError as e:
         print(f"quad-sitl: error: {e}", file=sys.stderr)
         return 1
@@ -289,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
                 sim.wait(timeout=5)
             except subprocess.TimeoutExpired:
                 sim.kill()
-    summary = summarise(logs, NodeConfig().target, policy.info.control_period_s)
+    summary = summarise(logs, policy.info.control_period_s, task)
+    summary["task"] = task
     summary["policy"] = str(policy_path)
     summary["backend"] = args.backend
     summary["monitor_events"] = dict(monitor.events)

@@ -139,7 +139,7 @@ def test_ten_thousand_junk_datagrams_during_a_flight_are_dropped_and_counted(tmp
         stats = stop(sim, stats_path, wait_s=5.0)
     sent_total = sum(sum(v.values()) for k, v in sent.items() if k != "forwarded")
     assert sent_total == 10_000, sent
-    s = episode_summary(log, (0, 0, 2), 0.01)
+    s = episode_summary(log, 0.01)
     per = periods_ms(log)
     jitter = np.abs(per - 10.0)
     print(
@@ -231,7 +231,7 @@ def test_an_intruder_on_another_port_is_ignored_and_sent_nothing(tmp_path):
     except BlockingIOError:
         pass
     intruder.close()
-    s = episode_summary(log, (0, 0, 2), 0.01)
+    s = episode_summary(log, 0.01)
     print(
         f"intruder datagrams ignored: simulator {stats['dropped'].get('foreign_peer')}, "
         f"node {log.dropped['foreign_peer']}"

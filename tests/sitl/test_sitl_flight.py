@@ -100,6 +100,24 @@ def test_quad_sitl_command_flies_and_summarises(tmp_path, capsys):
     assert s["control_latency_p99_us"] < 5_000 and s["steps_per_s"] > 200
 
 
+@pytest.mark.parametrize(("task", "episodes"), [("waypoint", 3), ("circle", 1)])
+def test_quad_sitl_flies_the_waypoint_and_circle_policies(task, episodes, tmp_path, capsys):
+    """The shipped waypoint and circle files fly their task in SITL: the simulator starts each
+    episode where core.mission puts it, the node draws the same target (waypoint) or moves it
+    round the circle, and success is judged as the training evaluation judges it."""
+    out, plot = tmp_path / f"{task}.json", tmp_path / f"{task}.png"
+    policy = str(SHIPPED_HOVER.parents[1] / task / "policy.onnx")
+    assert main([policy, "--episodes", str(episodes), "--gcs", "none", "--json", str(out), "--plot", str(plot)]) == 0
+    s = json.loads(out.read_text())
+    print(task, {k: s[k] for k in ("success_rate", "mean_error_last_2s_m", "steps_per_s")}, s.get("radial_rms_m"))
+    assert s["task"] == task and s["success_rate"] == 1.0 and s["crashes"] == 0
+    if task == "circle":
+        assert s["steps"] == 1257 and s["radial_rms_m"] < 0.05 and s["speed_error_mps"] < 0.1
+    assert plot.stat().st_size > 10_000
+    assert main([policy, "--task", "hover"]) == 2 if task == "circle" else True
+    capsys.readouterr()
+
+
 def test_quad_sitl_refuses_a_bad_policy_file(tmp_path, capsys):
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"\x00" * 100)

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quadpilot.core import dynamics
+from quadpilot.core.mission import TASKS, Mission, plan_episode
 from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
 from quadpilot.core.reward import RewardConfig, crashed
 from quadpilot.core.start import sample_start_states
@@ -112,8 +113,12 @@ class SimConfig:
     truth in HIL_STATE_QUATERNION stays exact."""
     dt: float = dynamics.DT
     """s, simulation step (0.01 s, the control step the policies were trained at)."""
+    task: str = "hover"
+    """hover, waypoint or circle (`core.mission`): waypoint and circle episodes start where
+    `core.mission.plan_episode(task, seed, episode)` says (the autopilot draws its target from the
+    same call), and `crashed` measures the flight area from that episode's target (circle: centre)."""
     target: tuple[float, float, float] = (0.0, 0.0, 2.0)
-    """m, world ENU: the hover target (the training environment's `home`): centre of the start
+    """m, world ENU, hover: the hover target (the training environment's `home`): centre of the start
     distribution, and the point `crashed` measures the flight area from."""
     init_pos_radius: float = 1.0
     """m, start position uniform in a ball of this radius around `target`."""
@@ -151,6 +156,8 @@ class SimConfig:
     def __post_init__(self) -> None:
         parse_address(self.listen)
         get_preset(self.vehicle)
+        if self.task not in TASKS:
+            raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
         for name in ("mass_scale", "inertia_scale", "motor_scale", "dt", "esc_timeout_s", "lockstep_timeout_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -210,6 +217,16 @@ class SimConfig:
         """m/s² per sample, 0 without `imu_noise`."""
         return sensors.ACCEL_NOISE_DENSITY / math.sqrt(self.dt) if self.imu_noise else 0.0
 
+    def mission(self, episode: int) -> Mission:
+        return plan_episode(self.task, self.seed, episode, self.dt)
+
+    def area_centre(self, episode: int) -> np.ndarray:
+        """m, world ENU: the point `crashed` measures the flight area (5 m) from."""
+        if self.task == "hover":
+            return np.asarray(self.target, np.float64)
+        m = self.mission(episode)
+        return np.asarray(m.home if self.task == "circle" else m.target, np.float64)
+
     def start_state(self, episode: int) -> tuple[np.ndarray, np.random.Generator]:
         """(12-state, generator) of episode `episode`: `initial_state`, or a draw from the training
         start distribution with np.random.default_rng([seed, episode]); the generator then feeds
@@ -217,6 +234,9 @@ class SimConfig:
         rng = np.random.default_rng([self.seed, episode])
         if self.initial_state is not None:
             return np.array(self.initial_state, dtype=np.float64), rng
+        if self.task != "hover":
+            s = self.mission(episode).start_state(rng, self.init_vel, self.init_tilt_deg, self.init_rate)
+            return s, rng
         centre = np.asarray(self.target, np.float64)[None, :]
         s = sample_start_states(rng, centre, self.init_pos_radius, self.init_vel, self.init_tilt_deg, self.init_rate)
         return s[0], rng
@@ -423,6 +443,7 @@ class Simulator:
         ep = _Episode(k, link.peer_label)
         plant = Plant(cfg.vehicle_params, cfg.dt, cfg.wind)
         state0, rng = cfg.start_state(k)
+        self._target = cfg.area_centre(k)
         plant.reset(state0)
         n, wall0, end = 0, time.monotonic(), "max_steps"
         try:
@@ -687,6 +708,7 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
     )
     mode.add_argument("--realtime", dest="lockstep", action="store_false", help="one step per dt of wall-clock time")
     p.add_argument("--vehicle", default=d.vehicle, help=f"airframe preset (default {d.vehicle})")
+    p.add_argument("--task", choices=TASKS, default=d.task, help="where episodes start (core.mission; default hover)")
     p.add_argument("--mass-scale", type=_positive, default=d.mass_scale, help="multiplies the mass")
     p.add_argument("--inertia-scale", type=_positive, default=d.inertia_scale, help="multiplies the inertias")
     p.add_argument("--motor-scale", type=_positive, default=d.motor_scale, help="multiplies the thrust coefficient k_f")
@@ -729,6 +751,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     try:
         return SimConfig(
             listen=args.listen,
+            task=args.task,
             vehicle=args.vehicle,
             mass_scale=args.mass_scale,
             inertia_scale=args.inertia_scale,

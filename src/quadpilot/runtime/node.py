@@ -168,16 +168,19 @@ class Node:
             self._signing = link.signing_state
         return link
 
-    def _target_at(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
-        if self.cfg.targets is None:
-            return self._target, None
-        pos, vel = self.cfg.targets(k)
-        return np.asarray(pos, np.float64), None if vel is None else np.asarray(vel, np.float64)
-
-    def fly(self, monitor: SafetyMonitor, tap: Callable[[str, bytes], None] | None = None) -> EpisodeLog:
+    def fly(
+        self,
+        monitor: SafetyMonitor,
+        tap: Callable[[str, bytes], None] | None = None,
+        targets: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None = None,
+    ) -> EpisodeLog:
         """Fly one episode; the monitor is reset first (new episode: policy state cleared).
-        `tap(direction, raw)` sees every message sent and received (a .tlog writer)."""
+        `tap(direction, raw)` sees every message sent and received (a .tlog writer); `targets`
+        (step → target position, velocity or None, e.g. `core.mission.Mission.target_at`)
+        overrides `cfg.targets` for this episode."""
         cfg = self.cfg
+        targets = targets or cfg.targets
+        fixed = self._target
         log = EpisodeLog()
         monitor.reset()
         period = cfg.control_period_s or monitor.policy.info.control_period_s
@@ -243,7 +246,7 @@ class Node:
                     s = state.copy()
                     s[9:12] = wire.gyro_from_hil_sensor(msg)
                     k = log.steps
-                    target, target_vel = self._target_at(k)
+                    target, target_vel = (fixed, None) if targets is None else targets(k)
                     obs = build_observation(s[None], target, target_vel)[0]
                     cmd = monitor.act(obs)
                     mav.hil_actuator_controls_send(
@@ -308,25 +311,11 @@ class Node:
             gcs.heartbeat(False, mavlink2.MAV_STATE_CRITICAL)
 
 
-def episode_summary(log: EpisodeLog, target, control_period_s: float, window_s: float = 2.0, tol: float = 0.05):
-    """Success (no crash, mean error over the last `window_s` ≤ `tol`), errors and crash flag,
-    with the training evaluation's definitions (quadpilot.train.evaluate, core.reward.crashed)."""
-    from quadpilot.core.reward import RewardConfig, crashed
+def episode_summary(log: EpisodeLog, control_period_s: float, task: str = "hover") -> dict:
+    """Success and errors of one flight with the project's one definition (`core.mission.judge`,
+    the same as the training evaluation's); a failsafe is never a success."""
+    from quadpilot.core.mission import judge
 
-    if not log.states:
-        return {"steps": 0, "success": False, "crashed": False, "rms_error_m": math.nan, "final_distance_m": math.nan}
-    states = np.asarray(log.states)
-    targets = np.asarray(log.targets) if log.targets else np.asarray(target)
-    err = states[:, 0:3] - targets
-    dist = np.linalg.norm(err, axis=1)
-    crash = bool(crashed(states, err, RewardConfig()).any())
-    k = max(1, round(window_s / control_period_s))
-    window = float(dist[-k:].mean())
-    return {
-        "steps": len(states),
-        "success": bool(not crash and len(states) >= k and window <= tol and log.failsafe is None),
-        "crashed": crash,
-        "rms_error_m": float(np.sqrt(np.mean(dist**2))),
-        "mean_error_last_window_m": window,
-        "final_distance_m": float(dist[-1]),
-    }
+    out = judge(task, np.asarray(log.states), np.asarray(log.targets), control_period_s)
+    out["success"] = bool(out["success"] and log.failsafe is None)
+    return out

@@ -19,12 +19,19 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 from quadpilot.core import dynamics
+from quadpilot.core.mission import (
+    CIRCLE_RADIUS,
+    CIRCLE_SPEED,
+    HOME,
+    START_RADIUS,
+    SUCCESS_TOLERANCE_M,
+    SUCCESS_WINDOW_S,
+    TASKS,
+)
 from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT, ObsLayout, build_observation
 from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
 from quadpilot.core.reward import RewardConfig, circle_errors, circle_reward, crashed, hover_reward
 from quadpilot.core.start import sample_ball, sample_start_states
-
-TASKS = ("hover", "waypoint", "circle")
 
 
 @dataclass(frozen=True)
@@ -36,7 +43,7 @@ class EnvConfig:
     `target_radius` of it; circle: follow a point moving round a circle about `home`."""
     vehicle: str | VehicleParams = "seed"
     """Airframe: a preset name ("seed", "crazyflie") or a VehicleParams."""
-    home: tuple[float, float, float] = (0.0, 0.0, 2.0)
+    home: tuple[float, float, float] = HOME["hover"]
     """m, world ENU: hover target, waypoint start, circle centre."""
     episode_steps: int = 500
     """Steps before truncation (500 × 0.01 s = 5 s, seed 000)."""
@@ -44,7 +51,7 @@ class EnvConfig:
     """s, control period."""
     substeps: int = 1
     """Physics substeps per control step."""
-    init_pos_radius: float = 1.0
+    init_pos_radius: float = START_RADIUS["hover"]
     """m, start position uniform in a ball of this radius around the start point."""
     init_vel: float = 0.5
     """m/s, each start velocity component uniform in ±init_vel."""
@@ -54,14 +61,14 @@ class EnvConfig:
     """rad/s, each start body rate uniform in ±init_rate."""
     target_radius: float = 0.5
     """m, waypoint: target uniform in a ball of this radius around home (the curriculum stage)."""
-    circle_radius: float = 1.0
+    circle_radius: float = CIRCLE_RADIUS
     """m, circle radius (seed 001)."""
-    circle_speed: float = 1.0
+    circle_speed: float = CIRCLE_SPEED
     """m/s, speed along the circle, counter-clockwise seen from above (seed 001)."""
-    success_tolerance: float = 0.05
+    success_tolerance: float = SUCCESS_TOLERANCE_M
     """m, an episode succeeds if it ends uncrashed with mean position error over its last
     `success_window` seconds at most this."""
-    success_window: float = 2.0
+    success_window: float = SUCCESS_WINDOW_S
     """s, see `success_tolerance`."""
     dtype: str = "float32"
     """Float type of the simulation state: float32 (fast) or float64."""
@@ -117,8 +124,12 @@ def make_config(task: str | None = None, **kwargs: Any) -> EnvConfig:
         kwargs["task"] = task
     defaults = {
         # waypoint: a soft tilt penalty keeps the race to far targets off the 60° crash limit
-        "waypoint": {"home": (0.0, 0.0, 3.0), "init_pos_radius": 0.0, "reward": RewardConfig(tilt_weight=50.0)},
-        "circle": {"init_pos_radius": 0.5},
+        "waypoint": {
+            "home": HOME["waypoint"],
+            "init_pos_radius": START_RADIUS["waypoint"],
+            "reward": RewardConfig(tilt_weight=50.0),
+        },
+        "circle": {"init_pos_radius": START_RADIUS["circle"]},
     }
     return EnvConfig(**{**defaults.get(kwargs.get("task", "hover"), {}), **kwargs})
 

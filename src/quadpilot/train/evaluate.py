@@ -2,9 +2,9 @@
 runtime's): a policy is any callable mapping raw observations (N, obs_dim) float32 to actions
 (N, 4) in [−1, 1].
 
-Hover/waypoint success (the project's bar): the episode does not crash and the mean position error
-over its last 2 s is ≤ 0.05 m. Circle: radial RMS error and speed error measured after the first
-lap, over an episode of two laps.
+Success is `core.mission`'s definition, the one SITL judges by too. Hover/waypoint: the episode
+does not crash and the mean position error over its last 2 s is ≤ 0.05 m. Circle: radial RMS error
+and speed error measured after the first lap, over an episode of two laps.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ import math
 from collections.abc import Callable
 
 import numpy as np
+
+from quadpilot.core.mission import CIRCLE_RADIAL_TOLERANCE_M, CIRCLE_SPEED_TOLERANCE_MPS
 
 from .envs import EnvConfig, QuadBatch
 
@@ -72,7 +74,7 @@ def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int 
     if cfg.task == "circle":
         rms = np.sqrt(rad_sq / max(tracked, 1))
         spd = spd_abs / max(tracked, 1)
-        ok = alive & (rms <= 0.05) & (spd <= 0.1)
+        ok = alive & (rms <= CIRCLE_RADIAL_TOLERANCE_M) & (spd <= CIRCLE_SPEED_TOLERANCE_MPS)
         out.update(
             radial_rms_m=float(rms[alive].mean()) if alive.any() else float("nan"),
             speed_error_mps=float(spd[alive].mean()) if alive.any() else float("nan"),

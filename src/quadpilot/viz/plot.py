@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from quadpilot.core.dynamics import ATT, MOTOR_NAMES, VEL
+from quadpilot.core.mission import SUCCESS_TOLERANCE_M
 
 from ._files import atomic_output
 from ._mpl import new_figure
@@ -27,8 +28,8 @@ OTHER_SOURCE_COLOUR = "tab:gray"
 FAILSAFE_COLOUR = "red"
 ERROR_FLOOR_M = 1e-4
 """Errors below this are drawn at it, so a log axis survives an exact zero."""
-SUCCESS_TOL_M = 0.05
-"""The hover bar's error tolerance (DESIGN.md, `runtime.node.episode_summary`), drawn for reference."""
+SUCCESS_TOL_M = SUCCESS_TOLERANCE_M
+"""The hover bar's error tolerance, drawn for reference."""
 PLOT_FORMATS = (".png", ".svg", ".pdf")
 
 

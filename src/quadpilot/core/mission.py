@@ -1,0 +1,151 @@
+"""What an episode asks of the vehicle, and when it succeeded: one definition for the training
+environments' evaluation and for SITL, so that "success" means the same everywhere.
+
+Tasks (seed 000 and seed 001; the training environments' defaults, `train.envs.make_config`):
+- hover: start within `HOVER_START_RADIUS` of home (0, 0, 2) m, hold home.
+- waypoint: start at home (0, 0, 3) m, reach a target uniform in a ball of `WAYPOINT_RADIUS`
+  (the last curriculum stage, seed 000's 0.5 → 1 → 2 m) around it, and hold it.
+- circle: follow a point moving counter-clockwise round a circle of `CIRCLE_RADIUS` at
+  `CIRCLE_SPEED` about home (0, 0, 2) m, starting within `CIRCLE_START_RADIUS` of its start point.
+
+Success: hover and waypoint, the episode does not crash and the mean distance to the target over
+its last `SUCCESS_WINDOW_S` is at most `SUCCESS_TOLERANCE_M`. Circle: no crash, and over the
+second half of a two-lap flight (the first lap is the approach) the RMS radial error is at most
+`CIRCLE_RADIAL_TOLERANCE_M` and the mean absolute tangential-speed error at most
+`CIRCLE_SPEED_TOLERANCE_MPS` (seed 001's two circle errors, `core.reward.circle_errors`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .reward import RewardConfig, circle_errors, crashed
+from .start import sample_ball, sample_start_states
+
+TASKS = ("hover", "waypoint", "circle")
+SUCCESS_TOLERANCE_M = 0.05
+SUCCESS_WINDOW_S = 2.0
+CIRCLE_RADIAL_TOLERANCE_M = 0.05
+CIRCLE_SPEED_TOLERANCE_MPS = 0.1
+HOME = {"hover": (0.0, 0.0, 2.0), "waypoint": (0.0, 0.0, 3.0), "circle": (0.0, 0.0, 2.0)}
+HOVER_START_RADIUS = 1.0
+WAYPOINT_RADIUS = 2.0
+CIRCLE_RADIUS = 1.0
+CIRCLE_SPEED = 1.0
+CIRCLE_START_RADIUS = 0.5
+START_RADIUS = {"hover": HOVER_START_RADIUS, "waypoint": 0.0, "circle": CIRCLE_START_RADIUS}
+
+
+def circle_lap_s(radius: float = CIRCLE_RADIUS, speed: float = CIRCLE_SPEED) -> float:
+    return 2.0 * math.pi * radius / speed
+
+
+def default_duration_s(task: str) -> float:
+    """s of flight an episode of `task` is judged on: 5 s (training's episode), two laps for circle."""
+    return 2.0 * circle_lap_s() if task == "circle" else 5.0
+
+
+@dataclass(frozen=True)
+class Mission:
+    """One episode's task: where it starts and where the target is at control step k."""
+
+    task: str
+    home: tuple[float, float, float]
+    start_centre: tuple[float, float, float]
+    start_radius: float
+    target: tuple[float, float, float]
+    """hover: home; waypoint: the drawn target; circle: the target point at k = 0."""
+    phase: float = 0.0
+    """circle: angle of the target point at k = 0, rad."""
+    radius: float = CIRCLE_RADIUS
+    speed: float = CIRCLE_SPEED
+    dt: float = 0.01
+
+    def target_at(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """(position (3,), velocity (3,) or None) of the target after k control steps, world ENU.
+        Circle: the angle advances by speed/radius·dt per step, as in the training environment."""
+        if self.task != "circle":
+            return np.asarray(self.target, np.float64), None
+        ang = self.phase + self.speed / self.radius * self.dt * k
+        c, s = math.cos(ang), math.sin(ang)
+        h = self.home
+        pos = np.array([h[0] + self.radius * c, h[1] + self.radius * s, h[2]])
+        return pos, np.array([-self.speed * s, self.speed * c, 0.0])
+
+    def start_state(self, rng: np.random.Generator, vel: float, tilt_deg: float, rate: float = 0.0) -> np.ndarray:
+        """(12,) start state drawn around `start_centre` (core.start)."""
+        centre = np.asarray(self.start_centre, np.float64)[None]
+        return sample_start_states(rng, centre, self.start_radius, vel, tilt_deg, rate)[0]
+
+
+def plan_episode(
+    task: str,
+    seed: int,
+    episode: int,
+    dt: float = 0.01,
+    start_radius: float | None = None,
+    waypoint_radius: float = WAYPOINT_RADIUS,
+) -> Mission:
+    """Episode `episode` of a run seeded `seed`: the same draw on every side that calls it (the
+    simulator for the start, the autopilot for the target), from np.random.default_rng([seed,
+    episode, 1]), a stream apart from the start state's own."""
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; expected one of {TASKS}")
+    rng = np.random.default_rng([seed, episode, 1])
+    home = HOME[task]
+    radius = START_RADIUS[task] if start_radius is None else start_radius
+    if task == "waypoint":
+        target = tuple(float(v) for v in np.asarray(home) + sample_ball(rng, 1, waypoint_radius)[0])
+        return Mission(task, home, home, radius, target, dt=dt)
+    if task == "circle":
+        phase = float(rng.uniform(-math.pi, math.pi))
+        m = Mission(task, home, home, radius, home, phase=phase, dt=dt)
+        start = tuple(float(v) for v in m.target_at(0)[0])
+        return Mission(task, home, start, radius, start, phase=phase, dt=dt)
+    return Mission(task, home, home, radius, home, dt=dt)
+
+
+def judge(
+    task: str,
+    states: np.ndarray,
+    targets: np.ndarray,
+    dt: float,
+    home=None,
+    reward: RewardConfig | None = None,
+    window_s: float = SUCCESS_WINDOW_S,
+    tolerance_m: float = SUCCESS_TOLERANCE_M,
+) -> dict:
+    """Success and errors of one flown episode: states (N, 12) and the targets (N, 3) the policy
+    was given at each step. The flight must have lasted at least the judged window."""
+    states = np.asarray(states, np.float64)
+    if states.ndim != 2 or states.shape[0] == 0:
+        return {"steps": 0, "success": False, "crashed": False, "rms_error_m": math.nan, "final_distance_m": math.nan}
+    err = states[:, 0:3] - np.broadcast_to(np.asarray(targets, np.float64), states[:, 0:3].shape)
+    dist = np.linalg.norm(err, axis=1)
+    crash = bool(crashed(states, err, reward or RewardConfig()).any())
+    k = max(1, round(window_s / dt))
+    window = float(dist[-k:].mean())
+    out = {
+        "steps": len(states),
+        "crashed": crash,
+        "rms_error_m": float(np.sqrt(np.mean(dist**2))),
+        "mean_error_last_window_m": window,
+        "final_distance_m": float(dist[-1]),
+    }
+    if task == "circle":
+        half = states[len(states) // 2 :]
+        e_r, e_v = circle_errors(
+            half, np.asarray(HOME["circle"] if home is None else home), CIRCLE_RADIUS, CIRCLE_SPEED
+        )
+        rms, spd = float(np.sqrt(np.mean(e_r**2))), float(np.mean(np.abs(e_v)))
+        long_enough = len(states) * dt >= 2.0 * circle_lap_s() - dt
+        out.update(radial_rms_m=rms, speed_error_mps=spd)
+        out["success"] = bool(
+            not crash and long_enough and rms <= CIRCLE_RADIAL_TOLERANCE_M and spd <= CIRCLE_SPEED_TOLERANCE_MPS
+        )
+    else:
+        out["success"] = bool(not crash and len(states) >= k and window <= tolerance_m)
+    return out
