@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from quadpilot.core.frames import euler_to_rotmat
+from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
 from quadpilot.link import wire
 
 HOME = wire.Home()
@@ -120,3 +120,24 @@ def test_hil_gps_fields_encode():
     s[3] = 1.0  # east 1 m/s
     msg = through_the_wire(mavlink.MAVLink_hil_gps_message, wire.hil_gps_fields(s, HOME, 5))
     assert (msg.vn, msg.ve, msg.vd, msg.vel, msg.cog, msg.fix_type) == (0, 100, 0, 100, 9000, 3)
+
+
+def test_the_scalar_fast_paths_equal_the_matrix_compositions():
+    """hil_state_quaternion_fields and state_from_hil_state_quaternion are written out in scalar
+    arithmetic (they run every step); they must equal the documented matrix compositions."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(4)
+    for _ in range(2000):
+        s = np.zeros(12)
+        s[0:6] = rng.uniform(-5, 5, 6)
+        s[6], s[7], s[8] = rng.uniform(-3.1, 3.1), rng.uniform(-1.5, 1.5), rng.uniform(-3.14, 3.14)
+        s[9:12] = rng.uniform(-4, 4, 3)
+        f = wire.hil_state_quaternion_fields(s, HOME, 1)
+        q_ref = wire.rotmat_to_quaternion(wire.rotmat_enu_flu_to_ned_frd(euler_to_rotmat(s[6], s[7], s[8])))
+        np.testing.assert_allclose(f["attitude_quaternion"], q_ref, atol=1e-12)
+        msg = SimpleNamespace(**f)
+        back = wire.state_from_hil_state_quaternion(msg, HOME)
+        r = wire.rotmat_ned_frd_to_enu_flu(wire.quaternion_to_rotmat(f["attitude_quaternion"]))
+        np.testing.assert_allclose(back[6:9], rotmat_to_euler(r), atol=1e-12)
+        np.testing.assert_allclose(back[0:3], wire.geodetic_to_local(f["lat"], f["lon"], f["alt"], HOME), atol=1e-12)

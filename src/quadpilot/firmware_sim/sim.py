@@ -484,16 +484,17 @@ class Simulator:
         )
 
     def _advance(self, link, plant: Plant, command: np.ndarray, n: int, rng, ep: _Episode) -> int:
-        """Step the plant once, note a crash, send the next step's messages; returns the new step."""
+        """Step the plant once, send the next step's messages, then note a crash (after the send:
+        the peer computes its answer meanwhile); returns the new step."""
         plant.step(command)
         n += 1
         ep.steps_done = n
         self.stats.steps += 1
+        self._send_step(link, plant, n, rng)
         if ep.first_crash_step is None:
             s = plant.state[None]
             if crashed(s, s[:, 0:3] - self._target, self._reward)[0]:
                 ep.first_crash_step = n
-        self._send_step(link, plant, n, rng)
         return n
 
     def _lockstep(self, link, plant: Plant, rng, ep: _Episode) -> tuple[int, str]:
@@ -620,10 +621,11 @@ class Simulator:
         if not armed:
             ep.commands += 1
             return np.zeros(dynamics.NUM_MOTORS)
-        if not np.all(np.isfinite(motors)):
+        values = motors.tolist()  # plain floats: four comparisons are cheaper than numpy calls
+        if not all(math.isfinite(v) for v in values):
             self._drop("non_finite_control", ep)
             return None
-        if np.any(motors < 0.0) or np.any(motors > 1.0):
+        if not all(0.0 <= v <= 1.0 for v in values):
             self._drop("out_of_range_control", ep)
             return None
         ep.commands += 1

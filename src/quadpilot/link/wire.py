@@ -157,30 +157,60 @@ def _cm(v: float) -> int:
     return max(-32767, min(32767, round(v * 100.0)))
 
 
+def _ned_frd_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """Body FRD → NED quaternion (w ≥ 0) of ENU/FLU ZYX Euler angles, in scalar arithmetic (this runs
+    every simulation step). The same rotation as `rotmat_to_quaternion(rotmat_enu_flu_to_ned_frd(
+    euler_to_rotmat(roll, pitch, yaw)))`, which the tests check it against."""
+    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+    sy, cy = math.sin(yaw), math.cos(yaw)
+    # R (body FLU → ENU) as core.frames.euler_to_rotmat; M = E·R·F: rows 0 and 1 swapped, row 2
+    # negated (E), columns 1 and 2 negated (F)
+    m00, m01, m02 = sy * cp, -(sy * sp * sr + cy * cr), -(sy * sp * cr - cy * sr)
+    m10, m11, m12 = cy * cp, -(cy * sp * sr - sy * cr), -(cy * sp * cr + sy * sr)
+    m20, m21, m22 = sp, cp * sr, cp * cr
+    tr = m00 + m11 + m22  # Shepperd's method, as rotmat_to_quaternion
+    if tr > 0.0:
+        t = math.sqrt(tr + 1.0) * 2.0
+        q = (0.25 * t, (m21 - m12) / t, (m02 - m20) / t, (m10 - m01) / t)
+    elif m00 > m11 and m00 > m22:
+        t = math.sqrt(1.0 + m00 - m11 - m22) * 2.0
+        q = ((m21 - m12) / t, 0.25 * t, (m01 + m10) / t, (m02 + m20) / t)
+    elif m11 > m22:
+        t = math.sqrt(1.0 + m11 - m00 - m22) * 2.0
+        q = ((m02 - m20) / t, (m01 + m10) / t, 0.25 * t, (m12 + m21) / t)
+    else:
+        t = math.sqrt(1.0 + m22 - m00 - m11) * 2.0
+        q = ((m10 - m01) / t, (m02 + m20) / t, (m12 + m21) / t, 0.25 * t)
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[0] < 0:
+        n = -n
+    return q[0] / n, q[1] / n, q[2] / n, q[3] / n
+
+
 def hil_state_quaternion_fields(
     state: np.ndarray, home: Home, time_usec: int, accel_flu: np.ndarray | None = None
 ) -> dict:
     """Keyword arguments of `mav.hil_state_quaternion_send` for one 12-state (ENU/FLU, SI)."""
-    state = np.asarray(state, np.float64)
-    r = euler_to_rotmat(state[6], state[7], state[8])
-    q = rotmat_to_quaternion(rotmat_enu_flu_to_ned_frd(r))
-    rates = flu_to_frd(state[9:12])
-    lat, lon, alt = local_to_geodetic(state[0:3], home)
-    vel = enu_to_ned(state[3:6])
-    acc = flu_to_frd(accel_flu) / G_MG if accel_flu is not None else np.zeros(3)
-    clip16 = lambda a: max(-32767, min(32767, round(float(a))))  # noqa: E731
+    x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r = (float(v) for v in state)
+    lat, lon, alt = local_to_geodetic((x, y, z), home)
+    if accel_flu is None:
+        acc = (0.0, 0.0, 0.0)
+    else:
+        a0, a1, a2 = (float(v) for v in accel_flu)
+        acc = (a0 / G_MG, -a1 / G_MG, -a2 / G_MG)
+    clip16 = lambda a: max(-32767, min(32767, round(a)))  # noqa: E731
     return {
         "time_usec": int(time_usec),
-        "attitude_quaternion": [float(v) for v in q],
-        "rollspeed": float(rates[0]),
-        "pitchspeed": float(rates[1]),
-        "yawspeed": float(rates[2]),
+        "attitude_quaternion": list(_ned_frd_quaternion(roll, pitch, yaw)),
+        "rollspeed": p,
+        "pitchspeed": -q,
+        "yawspeed": -r,
         "lat": lat,
         "lon": lon,
         "alt": alt,
-        "vx": _cm(vel[0]),
-        "vy": _cm(vel[1]),
-        "vz": _cm(vel[2]),
+        "vx": _cm(vy),  # NED north = ENU y
+        "vy": _cm(vx),
+        "vz": _cm(-vz),
         "ind_airspeed": 0,
         "true_airspeed": 0,
         "xacc": clip16(acc[0]),
@@ -190,15 +220,34 @@ def hil_state_quaternion_fields(
 
 
 def state_from_hil_state_quaternion(msg, home: Home) -> np.ndarray:
-    """A HIL_STATE_QUATERNION message (or any object with its fields) → 12-state ENU/FLU, SI."""
-    r = rotmat_ned_frd_to_enu_flu(quaternion_to_rotmat(msg.attitude_quaternion))
-    roll, pitch, yaw = rotmat_to_euler(r)
-    out = np.empty(12)
-    out[0:3] = geodetic_to_local(msg.lat, msg.lon, msg.alt, home)
-    out[3:6] = ned_to_enu(np.array([msg.vx, msg.vy, msg.vz], np.float64) * 0.01)
-    out[6:9] = (roll, pitch, yaw)
-    out[9:12] = frd_to_flu(np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed], np.float64))
-    return out
+    """A HIL_STATE_QUATERNION message (or any object with its fields) → 12-state ENU/FLU, SI.
+
+    Scalar arithmetic (every step): the attitude is `rotmat_to_euler(rotmat_ned_frd_to_enu_flu(
+    quaternion_to_rotmat(q)))` written out, which the tests check it against."""
+    w, x, y, z = msg.attitude_quaternion
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    # entries of R (FRD → NED) that the ENU/FLU Euler angles need, after E·R·F (see above)
+    r00, r10 = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z)
+    r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    n_m = (msg.lat * 1e-7 - home.lat_deg) * home.metres_per_deg_lat
+    e_m = (msg.lon * 1e-7 - home.lon_deg) * home.metres_per_deg_lon
+    return np.array(
+        [
+            e_m,
+            n_m,
+            msg.alt * 1e-3 - home.alt_m,
+            msg.vy * 0.01,
+            msg.vx * 0.01,
+            -msg.vz * 0.01,
+            math.atan2(r21, r22),
+            math.asin(min(1.0, max(-1.0, r20))),
+            math.atan2(r00, r10),
+            msg.rollspeed,
+            -msg.pitchspeed,
+            -msg.yawspeed,
+        ]
+    )
 
 
 def hil_sensor_fields(
@@ -268,14 +317,15 @@ class NonFiniteCommand(ValueError):
 def actuator_controls_fields(motors: np.ndarray, time_usec: int, armed: bool, lockstep: bool) -> dict:
     """Keyword arguments of `mav.hil_actuator_controls_send` for 4 motor commands in [0, 1] (our
     rotor order). Raises NonFiniteCommand for NaN/Inf; clamps finite values to [0, 1]."""
-    motors = np.asarray(motors, np.float64).reshape(-1)
-    if motors.shape != (NUM_MOTORS,):
-        raise ValueError(f"expected {NUM_MOTORS} motor commands, got shape {motors.shape}")
-    if not np.all(np.isfinite(motors)):
-        raise NonFiniteCommand(f"refusing to send non-finite motor commands {motors.tolist()}")
+    values = np.asarray(motors, np.float64).reshape(-1).tolist()
+    if len(values) != NUM_MOTORS:
+        raise ValueError(f"expected {NUM_MOTORS} motor commands, got {len(values)}")
     controls = [0.0] * 16
     for wire, ours in enumerate(MOTOR_MAP):
-        controls[wire] = min(1.0, max(0.0, float(motors[ours])))
+        v = values[ours]
+        if not math.isfinite(v):
+            raise NonFiniteCommand(f"refusing to send non-finite motor commands {values}")
+        controls[wire] = 1.0 if v > 1.0 else (0.0 if v < 0.0 else v)
     return {
         "time_usec": int(time_usec),
         "controls": controls,
