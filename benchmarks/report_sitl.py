@@ -1,0 +1,101 @@
+"""Markdown tables of the SITL speed and real-time jitter benchmarks from one run of
+benchmarks/test_sitl_speed.py.
+
+    .venv/bin/python benchmarks/report_sitl.py docs/bench/sitl_speed.json [--strip-data]
+
+Lockstep: control steps per second of each backend (steps per round / mean round time), as a
+ratio to real time at 100 Hz and to the in-process loop of the same run; target ≥ 2,000 steps/s.
+Real time: loop-period jitter |period − dt| at the node and at the simulator, p50/p99/max; target
+p99 ≤ 1 ms at 100 Hz and 250 Hz.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+STEPS_TARGET, JITTER_TARGET_MS = 2000.0, 1.0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("json", type=Path)
+    p.add_argument("--strip-data", action="store_true", help="drop per-round data from the file")
+    args = p.parse_args(argv)
+    try:
+        doc = json.loads(args.json.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        print(f"report_sitl: cannot read {args.json}: {e}", file=sys.stderr)
+        return 2
+    by = {b["name"]: b for b in doc["benchmarks"]}
+    rate = {}
+    for name, b in by.items():
+        if "steps_per_round" in b["extra_info"]:
+            rate[name] = b["extra_info"]["steps_per_round"] / b["stats"]["mean"]
+    base = rate.get("test_in_process_baseline")
+    m = doc.get("machine_info", {})
+    print(
+        f"Machine: {m.get('cpu', {}).get('brand_raw', m.get('processor', '?'))}, {m.get('system')} "
+        f"{m.get('release')}, Python {m.get('python_version')}; {doc.get('datetime', '')[:19]}\n"
+    )
+    print(
+        "| loop | control steps/s (mean of 5 × 2,000) | × real time (100 Hz) | vs in-process | node latency p50 / p99 |"
+    )
+    print("|---|---:|---:|---:|---:|")
+    for name in (
+        "test_lockstep_closed_loop[numpy]",
+        "test_lockstep_closed_loop[onnxruntime]",
+        "test_in_process_baseline",
+    ):
+        if name not in by:
+            continue
+        info = by[name]["extra_info"]
+        if name == "test_in_process_baseline":
+            label = "in process, no wire (baseline)"
+        else:
+            label = "SITL lockstep, " + name.split("[")[1].rstrip("]") + " backend"
+        lat = (
+            f"{info['node_latency_p50_us']:.0f} / {info['node_latency_p99_us']:.0f} µs"
+            if "node_latency_p50_us" in info
+            else "—"
+        )
+        ratio = f"{rate[name] / base:.2f}" if base else "—"
+        print(f"| {label} | {rate[name]:,.0f} | {rate[name] / 100:.1f}× | {ratio} | {lat} |")
+    print()
+    print("| real time | steps | node jitter p50 / p99 / max | simulator jitter p50 / p99 / max | overruns |")
+    print("|---|---:|---:|---:|---:|")
+    worst = 0.0
+    for hz in (100, 250):
+        b = by.get(f"test_realtime_loop_jitter[{hz}]")
+        if b is None:
+            continue
+        i = b["extra_info"]
+        worst = max(worst, i["node_jitter_p99_ms"], i["sim_jitter_p99_ms"])
+        print(
+            f"| {hz} Hz | {i['steps']} | {i['node_jitter_p50_ms']:.3f} / {i['node_jitter_p99_ms']:.3f} / "
+            f"{i['node_jitter_max_ms']:.2f} ms | {i['sim_jitter_p50_ms']:.3f} / {i['sim_jitter_p99_ms']:.3f} / "
+            f"{i['sim_jitter_max_ms']:.2f} ms | {i['sim_overruns']} |"
+        )
+    lock = [v for k, v in rate.items() if k.startswith("test_lockstep")]
+    print()
+    if lock:
+        ok = min(lock) >= STEPS_TARGET
+        print(
+            f"- Lockstep ≥ {STEPS_TARGET:,.0f} steps/s on both backends: {'**met**' if ok else '**not met**'} "
+            f"(slowest {min(lock):,.0f})."
+        )
+    print(
+        f"- Real-time jitter p99 ≤ {JITTER_TARGET_MS} ms at 100 and 250 Hz: "
+        f"{'**met**' if worst <= JITTER_TARGET_MS else '**not met**'} (worst p99 {worst:.3f} ms)."
+    )
+    if args.strip_data:
+        for b in doc["benchmarks"]:
+            b["stats"].pop("data", None)
+        args.json.write_text(json.dumps(doc, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
