@@ -27,6 +27,9 @@ from quadpilot.firmware_sim.sim import (
     SimConfig,
     Simulator,
     SimulatorError,
+    UsageError,
+    build_sim_parser,
+    config_from_args,
     main_sim_only,
 )
 from quadpilot.link import wire
@@ -469,3 +472,27 @@ def test_sim_only_cli_serves_and_reports(capsys):
         other.listen(1)
         assert main_sim_only(["--listen", f"tcp:127.0.0.1:{other.getsockname()[1]}"]) == 1
         assert "address already in use" in capsys.readouterr().err
+
+
+def test_gusts_are_a_gauss_markov_wind_with_the_asked_spread_and_time_constant():
+    from quadpilot.core.params import get_preset
+    from quadpilot.firmware_sim.sim import Plant
+
+    vehicle = SimConfig(gust=1.5).vehicle_params
+    assert vehicle.drag > 0  # gusts alone switch the default wind drag on
+    plant = Plant(vehicle, 0.01, gust_std=1.5, gust_tau_s=0.5, rng=np.random.default_rng(3))
+    plant.reset(np.r_[0.0, 0.0, 2.0, np.zeros(9)])
+    hover = np.full(4, get_preset("seed").hover_command)
+    g = []
+    for _ in range(20_000):
+        plant.step(hover)
+        plant.state[:] = np.r_[0.0, 0.0, 2.0, np.zeros(9)]  # keep it in place: only the wind matters here
+        g.append(plant.gust.copy())
+    g = np.asarray(g)
+    assert np.std(g, axis=0) == pytest.approx([1.5] * 3, rel=0.2)
+    lag = round(0.5 / 0.01)  # correlation at one time constant is e^-1
+    corr = np.mean([np.corrcoef(g[:-lag, i], g[lag:, i])[0, 1] for i in range(3)])
+    assert corr == pytest.approx(np.exp(-1), abs=0.1)
+    assert config_from_args(build_sim_parser().parse_args(["--gust", "2", "--init-tilt", "5"])).gust == 2.0
+    with pytest.raises(UsageError):
+        config_from_args(build_sim_parser().parse_args(["--gust", "-1"]))

@@ -103,6 +103,10 @@ class SimConfig:
     """Multiplies the rotor thrust coefficient k_f (weaker or stronger motors)."""
     wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """m/s, constant wind velocity in world ENU. It acts through linear drag, F = drag·(wind − v)."""
+    gust: float = 0.0
+    """m/s, standard deviation of wind gusts on each axis (0: none), added to `wind`."""
+    gust_tau_s: float = 2.0
+    """s, correlation time of the gusts."""
     drag: float | None = None
     """N·s/m, linear translational drag on the air-relative velocity, F = drag·(wind − v), world
     frame. None: the preset's own value (0 for the shipped presets, as in training), or
@@ -158,11 +162,19 @@ class SimConfig:
         get_preset(self.vehicle)
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
-        for name in ("mass_scale", "inertia_scale", "motor_scale", "dt", "esc_timeout_s", "lockstep_timeout_s"):
+        for name in (
+            "mass_scale",
+            "inertia_scale",
+            "motor_scale",
+            "dt",
+            "esc_timeout_s",
+            "lockstep_timeout_s",
+            "gust_tau_s",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        for name in ("init_pos_radius", "init_vel", "init_tilt_deg", "init_rate"):
+        for name in ("init_pos_radius", "init_vel", "init_tilt_deg", "init_rate", "gust"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a finite number ≥ 0, got {v!r}")
@@ -198,7 +210,7 @@ class SimConfig:
         if self.drag is not None:
             return float(self.drag)
         own = get_preset(self.vehicle).drag
-        return DEFAULT_WIND_DRAG if own == 0 and any(self.wind) else own
+        return DEFAULT_WIND_DRAG if own == 0 and (any(self.wind) or self.gust > 0) else own
 
     @property
     def vehicle_params(self) -> VehicleParams:
@@ -246,7 +258,15 @@ class Plant:
     """One simulated vehicle: `core.dynamics.step` on a batch of one, plus the constant part of
     the wind force. State (12,) ENU/FLU and rotor (4,) ω/ω_max, float64."""
 
-    def __init__(self, vehicle: VehicleParams, dt: float, wind=(0.0, 0.0, 0.0)) -> None:
+    def __init__(
+        self,
+        vehicle: VehicleParams,
+        dt: float,
+        wind=(0.0, 0.0, 0.0),
+        gust_std: float = 0.0,
+        gust_tau_s: float = 2.0,
+        rng: np.random.Generator | None = None,
+    ) -> None:
         self.vehicle = vehicle
         self.params = ParamBatch.from_preset(vehicle, 1)
         self.dt = dt
@@ -255,6 +275,14 @@ class Plant:
         # drag·wind/m is added after the step with the integrator's own constant-acceleration
         # formula, which is exactly what adding it inside the step would give.
         self._wind_acc = vehicle.drag * self.wind / vehicle.mass
+        # Gusts: each axis a first-order Gauss-Markov (Ornstein-Uhlenbeck) velocity with standard
+        # deviation gust_std and correlation time gust_tau_s, discretised exactly per step (the
+        # first-order shaping filter behind the Dryden model's low-frequency part, MIL-F-8785C).
+        self.gust_std = float(gust_std)
+        self._gust_decay = math.exp(-dt / gust_tau_s)
+        self._gust_kick = self.gust_std * math.sqrt(1.0 - self._gust_decay**2)
+        self._rng = rng if rng is not None else np.random.default_rng(0)
+        self.gust = np.zeros(3)
         self._f_max = vehicle.k_f * vehicle.omega_max**2  # N per rotor at command 1
         self.hover_command = float(vehicle.hover_command)
         self.state = np.zeros(dynamics.STATE_DIM)
@@ -264,15 +292,25 @@ class Plant:
         """Start from `state` (12,) with the rotors at hover speed."""
         self.state = np.array(state, dtype=np.float64).reshape(dynamics.STATE_DIM)
         self.rotor = np.full(dynamics.NUM_MOTORS, self.hover_command)
+        self.gust = self._rng.normal(0.0, self.gust_std, 3) if self.gust_std > 0 else np.zeros(3)
+
+    @property
+    def air(self) -> np.ndarray:
+        """m/s, world ENU: the wind now (constant part plus gust)."""
+        return self.wind + self.gust
 
     def step(self, command: np.ndarray) -> None:
         """Advance one dt with `command` (4,) in [0, 1] held."""
         s, w = dynamics.step(
             self.state[None], self.rotor[None], np.asarray(command, np.float64)[None], self.params, self.dt
         )
-        if self._wind_acc.any():
-            s[0, 0:3] += 0.5 * self.dt * self.dt * self._wind_acc
-            s[0, 3:6] += self.dt * self._wind_acc
+        acc = self._wind_acc
+        if self.gust_std > 0:
+            self.gust = self._gust_decay * self.gust + self._gust_kick * self._rng.normal(size=3)
+            acc = self.vehicle.drag * self.air / self.vehicle.mass
+        if acc.any():
+            s[0, 0:3] += 0.5 * self.dt * self.dt * acc
+            s[0, 3:6] += self.dt * acc
         self.state, self.rotor = s[0], w[0]
 
     @property
@@ -282,7 +320,7 @@ class Plant:
 
     def specific_force_flu(self) -> np.ndarray:
         """m/s², body FLU, what an ideal accelerometer reads now."""
-        return sensors.specific_force_flu(self.state, self.thrust_n, self.vehicle.mass, self.vehicle.drag, self.wind)
+        return sensors.specific_force_flu(self.state, self.thrust_n, self.vehicle.mass, self.vehicle.drag, self.air)
 
 
 @dataclass
@@ -441,8 +479,8 @@ class Simulator:
     def _run_episode(self, link, k: int) -> EpisodeRecord:
         cfg = self.cfg
         ep = _Episode(k, link.peer_label)
-        plant = Plant(cfg.vehicle_params, cfg.dt, cfg.wind)
         state0, rng = cfg.start_state(k)
+        plant = Plant(cfg.vehicle_params, cfg.dt, cfg.wind, cfg.gust, cfg.gust_tau_s, rng)
         self._target = cfg.area_centre(k)
         plant.reset(state0)
         n, wall0, end = 0, time.monotonic(), "max_steps"
@@ -674,6 +712,16 @@ def _positive(text: str) -> float:
     return v
 
 
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number ≥ 0, got {text!r}")
+    return v
+
+
 def _int_at_least(lo: int):
     def parse(text: str) -> int:
         try:
@@ -715,6 +763,14 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
     p.add_argument("--inertia-scale", type=_positive, default=d.inertia_scale, help="multiplies the inertias")
     p.add_argument("--motor-scale", type=_positive, default=d.motor_scale, help="multiplies the thrust coefficient k_f")
     p.add_argument("--wind", type=_wind, default=d.wind, metavar="E,N,U", help="constant wind, m/s world ENU")
+    p.add_argument("--gust", type=_non_negative, default=d.gust, metavar="M/S", help="gust std per axis, m/s")
+    p.add_argument("--gust-tau", type=_positive, default=d.gust_tau_s, metavar="S", help="gust correlation time, s")
+    p.add_argument(
+        "--init-pos-radius", type=_non_negative, default=d.init_pos_radius, metavar="M", help="start ball radius"
+    )
+    p.add_argument("--init-vel", type=_non_negative, default=d.init_vel, metavar="M/S", help="start velocity range ±")
+    p.add_argument("--init-tilt", type=_non_negative, default=d.init_tilt_deg, metavar="DEG", help="start roll/pitch ±")
+    p.add_argument("--init-rate", type=_non_negative, default=d.init_rate, metavar="RAD/S", help="start body rates ±")
     p.add_argument(
         "--drag",
         type=float,
@@ -759,6 +815,12 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             inertia_scale=args.inertia_scale,
             motor_scale=args.motor_scale,
             wind=args.wind,
+            gust=args.gust,
+            gust_tau_s=args.gust_tau,
+            init_pos_radius=args.init_pos_radius,
+            init_vel=args.init_vel,
+            init_tilt_deg=args.init_tilt,
+            init_rate=args.init_rate,
             drag=args.drag,
             imu_noise=args.imu_noise,
             dt=1.0 / args.rate,
