@@ -97,6 +97,9 @@ PPO_OPTIONS = {
 }
 # Options a resumed run may change; everything else must match the checkpoint.
 RESUME_MAY_CHANGE = ("total_steps", "threads")
+# --algo: our PPO, or a comparison baseline from another library trained on the same environment
+# with settings matched to the PPO preset (a module of this package with train_from_cli(args, argv)).
+ALGOS = {"ppo": None, "sb3": "sb3_baseline"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -126,9 +129,17 @@ def build_parser() -> argparse.ArgumentParser:
             help=f"{doc} Default: the preset's, else {getattr(defaults, name)}.",
         )
     p.add_argument(
+        "--algo",
+        choices=tuple(ALGOS),
+        default="ppo",
+        help="Who learns: ppo (ours) or sb3 (Stable-Baselines3 PPO with settings matched to the preset, "
+        "for comparison; needs the dev extra). Default: ppo.",
+    )
+    p.add_argument(
         "--preset",
         choices=sorted(PRESETS),
-        help="PPO hyper-parameter preset: fast (batched PPO tuned here) or seed001 (seed 001's recipe). "
+        help="PPO hyper-parameter preset: fast (batched PPO tuned here), seed001 (seed 001's recipe) or "
+        "sb3_defaults (Stable-Baselines3 PPO's defaults). "
         "Options given explicitly override it. Default: fast.",
     )
     p.add_argument("--vehicle", choices=sorted(VEHICLES), help="Airframe preset. Default: seed.")
@@ -518,6 +529,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser().parse_args(argv)
+        if ALGOS[args.algo] is not None:
+            from importlib import import_module
+
+            return import_module(f".{ALGOS[args.algo]}", __package__).train_from_cli(args, argv)
         return _train(args, argv)
     except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
