@@ -4,8 +4,14 @@
 
 Prints p50 and p99 per case (µs, from the per-call round times), each case's speed-up over torch
 eager on the same network in the same run (ratio of p50), and whether the export issue's targets
-are met: MLP p50 ≤ 8 µs and p99 ≤ 20 µs on the faster monitored backend (validation included) and
-≥ 5× faster than torch eager; LSTM monitored step p50 ≤ 25 µs.
+are met: MLP p50 ≤ 8 µs and p99 ≤ 20 µs on the faster monitored NumPy / ONNX Runtime backend
+(validation included) and ≥ 5× faster than torch eager; LSTM monitored step p50 ≤ 25 µs.
+
+Then the C kernel (issue 8): its own latency from the timing loop in C (median of the repeats),
+the ctypes call overhead (the `ctypes_c` p50 minus that), what the c backend's `Policy.act` and the
+safety monitor add on top, the target (MLP kernel ≤ 1 µs), and the Cortex-M4F estimate from the
+operation count (`quadpilot.runtime.cgen.cortex_m4_estimate`; its assumptions are documented in
+`cgen.CORTEX_M4_CYCLES`).
 
 pytest-benchmark stores every round's time (about 9 MB for this suite); `--strip-data` rewrites the
 file without them (p50/p99 are kept in each benchmark's extra_info), small enough to keep in docs/.
@@ -20,12 +26,30 @@ import sys
 from pathlib import Path
 
 MLP_P50, MLP_P99, MLP_SPEEDUP, LSTM_P50 = 8.0, 20.0, 5.0, 25.0
-ORDER = ("monitored_numpy", "monitored_onnxruntime", "bare_numpy", "bare_onnxruntime", "session_run", "torch_eager")
+C_KERNEL_US = 1.0
+ORDER = (
+    "monitored_numpy",
+    "monitored_onnxruntime",
+    "monitored_c",
+    "bare_numpy",
+    "bare_onnxruntime",
+    "bare_c",
+    "ctypes_c",
+    "kernel_loop_expf",
+    "kernel_loop_tanhf",
+    "session_run",
+    "torch_eager",
+)
 LABEL = {
     "monitored_numpy": "NumPy backend + safety monitor",
     "monitored_onnxruntime": "ONNX Runtime backend (I/O binding) + safety monitor",
+    "monitored_c": "C backend + safety monitor",
     "bare_numpy": "NumPy backend alone",
     "bare_onnxruntime": "ONNX Runtime backend alone",
+    "bare_c": "C backend alone (`Policy.act`)",
+    "ctypes_c": "C kernel through ctypes (bare call)",
+    "kernel_loop_expf": "C kernel, timing loop in C (median of repeats)",
+    "kernel_loop_tanhf": "C kernel with libm `tanhf` (-DQP_USE_TANHF), loop in C",
     "session_run": "plain `InferenceSession.run`",
     "torch_eager": "torch eager, inference_mode (baseline)",
 }
@@ -69,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
             if r is None:
                 continue
             ratio = "–" if base is None else f"{base / r['p50_us']:.1f}×"
-            print(f"| {net} | {LABEL[case]} | {r['p50_us']:.2f} | {r['p99_us']:.2f} | {ratio} |")
+            p99 = f"{r['p99_us']:.2f}" if "p99_us" in r else "–"
+            print(f"| {net} | {LABEL[case]} | {r['p50_us']:.2f} | {p99} | {ratio} |")
     print()
     monitored = [res[("mlp", c)] for c in ("monitored_numpy", "monitored_onnxruntime") if ("mlp", c) in res]
     if monitored:
@@ -90,7 +115,62 @@ def main(argv: list[str] | None = None) -> int:
             )
         for label, ok, value in checks:
             print(f"- Target {label}: {'met' if ok else 'NOT met'} ({value})")
+    _report_c(res)
     return 0
+
+
+def _report_c(res: dict) -> None:
+    """The C kernel's figures: own latency, ctypes overhead, what the backend and monitor add, M4F."""
+    if not any(case == "kernel_loop_expf" for _, case in res):
+        return
+    print()
+    print(
+        "| network | C kernel, loop in C (ns) | through ctypes (ns) | ctypes overhead (ns) | "
+        "+ `Policy.act` (ns) | + safety monitor (ns) |"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
+    for net in ("mlp", "lstm"):
+        loop = res.get((net, "kernel_loop_expf"))
+        if loop is None:
+            continue
+        kernel = loop["p50_us"] * 1e3
+        cells = [f"{kernel:.0f}"]
+        prev = kernel
+        for case in ("ctypes_c", "bare_c", "monitored_c"):
+            r = res.get((net, case))
+            if r is None:
+                cells.append("–")
+                continue
+            t = r["p50_us"] * 1e3
+            cells.append(f"{t:.0f} (+{t - prev:.0f})" if case != "ctypes_c" else f"{t:.0f}")
+            if case == "ctypes_c":
+                cells.append(f"{t - kernel:.0f}")
+            prev = t
+        print(f"| {net} | " + " | ".join(cells) + " |")
+    print()
+    print("Cortex-M4F estimate (operation count × cycles per operation, `cgen.CORTEX_M4_CYCLES`):")
+    print()
+    print("| network | MACs | tanh | expf (σ) | div | sqrt | weights (KiB) | cycles | µs at 168 MHz |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for net in ("mlp", "lstm"):
+        loop = res.get((net, "kernel_loop_expf"))
+        if loop is None or "operations" not in loop:
+            continue
+        ops, m4 = loop["operations"], loop["cortex_m4"]
+        print(
+            f"| {net} | {ops['mac']:,} | {ops['tanh']} | {ops['expf']} | {ops['div']} | {ops['sqrtf']} | "
+            f"{4 * ops['weights'] / 1024:.1f} | {m4['cycles_low']:,.0f}–{m4['cycles_high']:,.0f} | "
+            f"{m4['us_low']:.0f}–{m4['us_high']:.0f} |"
+        )
+    print()
+    mlp = res.get(("mlp", "kernel_loop_expf"))
+    if mlp is not None:
+        us = mlp["p50_us"]
+        print(
+            f"- Target MLP kernel ≤ {C_KERNEL_US:g} µs (loop in C): {'met' if us <= C_KERNEL_US else 'NOT met'} "
+            f"({us * 1e3:.0f} ns; min of {mlp['repeats']} repeats {mlp['min_us'] * 1e3:.0f} ns)"
+        )
+        print(f"- Built with: {mlp.get('compile', '?')}")
 
 
 if __name__ == "__main__":

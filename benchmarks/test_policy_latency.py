@@ -3,12 +3,22 @@
 For the shipped hover MLP (18 → 64 → 64 → 4, tanh) and an LSTM of the same width (18 → LSTM 64 →
 4, built by the training code's `RecurrentActorCritic` and exported the same way), one `act(obs)`:
 
-    monitored_numpy, monitored_onnxruntime   SafetyMonitor.act: observation validation, envelope
-                                             check, inference, command check (what flies)
-    bare_numpy, bare_onnxruntime             the backend's Policy.act alone
+    monitored_numpy, monitored_onnxruntime,  SafetyMonitor.act: observation validation, envelope
+    monitored_c                              check, inference, command check (what flies)
+    bare_numpy, bare_onnxruntime, bare_c     the backend's Policy.act alone
+    ctypes_c                                 the c backend's compiled kernel called through ctypes
+                                             on its preallocated buffers, nothing else
     session_run                              onnxruntime InferenceSession.run, as most code calls it
     torch_eager                              the exported torch module, batch 1, inference_mode,
                                              including numpy → tensor → numpy (the baseline)
+
+and, in the same run, the C kernel timed by a loop in C (`test_c_kernel_loop`): `cgen.bench_source`
+generates bench.c, which replays the golden vectors and then times 201 repeats of N back-to-back
+calls (about 1 ms each) with clock_gettime; built with the c backend's flags (-std=c99 -O2), with
+the default expf-based tanh and with libm's tanhf (-DQP_USE_TANHF). The kernel's own latency is the
+median repeat; the ctypes call overhead is ctypes_c minus it. Its extra_info also carries the
+operation count and the Cortex-M4F cycle estimate of `cgen.cortex_m4_estimate` (the per-operation
+figures and their sources are in `cgen.CORTEX_M4_CYCLES`).
 
 Run (the project's addopts disable benchmarks, so enable them here):
 
@@ -19,11 +29,15 @@ Run (the project's addopts disable benchmarks, so enable them here):
 Each round is one call (`pedantic`, iterations=1), so the round times are the per-call latency
 distribution; p50 and p99 are taken from it (pytest-benchmark reports no p99 itself, so it goes into
 `extra_info`). Garbage collection stays on, as in the control loop. Without --benchmark-enable each
-case runs once, a smoke test.
+case runs once, a smoke test (the C loop runs 1,000 calls). The c cases and the C loop need a C
+compiler and skip without one. The compiled files go to the c backend's cache and pytest's tmp_path,
+never into the repository.
 """
 
 from __future__ import annotations
 
+import re
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +46,8 @@ import torch
 
 from quadpilot.export.onnx_export import deployable, export_onnx
 from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.runtime.cbackend import COMPILE_FLAGS, find_compiler
+from quadpilot.runtime.cgen import bench_source, cortex_m4_estimate, operation_count
 from quadpilot.train.checkpoint import load_policy as load_trained
 from quadpilot.train.checkpoint import save_untrained_policy
 from quadpilot.train.envs import make_config
@@ -41,7 +57,20 @@ MODELS = Path(__file__).parents[1] / "models"
 ROUNDS = {"torch_eager": 5_000}
 DEFAULT_ROUNDS = 20_000
 WARMUP = 500
-CASES = ("monitored_numpy", "monitored_onnxruntime", "bare_numpy", "bare_onnxruntime", "session_run", "torch_eager")
+CASES = (
+    "monitored_numpy",
+    "monitored_onnxruntime",
+    "monitored_c",
+    "bare_numpy",
+    "bare_onnxruntime",
+    "bare_c",
+    "ctypes_c",
+    "session_run",
+    "torch_eager",
+)
+COMPILER = find_compiler()
+LOOP_CALLS = {"mlp": 2_000, "lstm": 500}  # per repeat of the C loop: about a millisecond each
+LOOP_REPEATS = 201
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +88,18 @@ def networks(tmp_path_factory):
 def _callable(case: str, pt: Path, onnx_path: Path):
     """A zero-argument function doing one batch-1 act on a real observation."""
     obs = load_policy(onnx_path, "numpy").info.golden_obs[0].copy()
+    if case.endswith("_c") and COMPILER is None:
+        pytest.skip("the c backend needs a C compiler")
+    if case == "ctypes_c":
+        policy = load_policy(onnx_path, "c")
+        policy._obs[...] = obs
+        kernel, args, out = policy.kernel, policy.kernel_args, policy._out
+
+        def through_ctypes():
+            kernel(*args)
+            return out
+
+        return through_ctypes
     if case.startswith(("monitored", "bare")):
         backend = case.split("_", 1)[1]
         policy = load_policy(onnx_path, backend)
@@ -111,3 +152,51 @@ def test_act_latency(benchmark, networks, net, case):
         benchmark.extra_info.update(
             p50_us=float(np.percentile(data, 50)), p99_us=float(np.percentile(data, 99)), rounds=len(data)
         )
+
+
+@pytest.mark.parametrize("tanh", ["expf", "tanhf"])
+@pytest.mark.parametrize("net", ["mlp", "lstm"])
+def test_c_kernel_loop(benchmark, networks, net, tanh, tmp_path):
+    """The generated kernel timed by a loop in C (bench.c), its golden vectors checked first."""
+    if COMPILER is None:
+        pytest.skip("the c backend needs a C compiler")
+    from quadpilot.runtime.cgen import generate, initializers
+    from quadpilot.runtime.model import read_model
+
+    _, onnx_path = networks[net]
+    model, info = read_model(onnx_path)
+    code = generate(info, initializers(model))
+    code.write(tmp_path)
+    (tmp_path / "bench.c").write_text(bench_source(info))
+    flags = [f for f in COMPILE_FLAGS if f not in ("-fPIC", "-shared")]
+    defines = ["-DQP_USE_TANHF"] if tanh == "tanhf" else []
+    exe = tmp_path / "bench"
+    argv = [*COMPILER, *flags, *defines, "-o", str(exe), "bench.c", "policy.c", "-lm"]
+    subprocess.run(argv, cwd=tmp_path, check=True)
+    disabled = getattr(benchmark, "disabled", False)
+    calls, repeats = (1_000, 1) if disabled else (LOOP_CALLS[net], LOOP_REPEATS)
+    done = []
+
+    def run():
+        done.append(subprocess.run([str(exe), str(calls), str(repeats)], capture_output=True, text=True, check=True))
+
+    benchmark.group = f"C kernel loop, {net}"
+    benchmark.pedantic(run, rounds=1, iterations=1)
+    out = done[-1].stdout
+    ns = [float(v) for v in re.findall(r"ns_per_inference (\S+)", out)]
+    golden = float(re.search(r"golden_max_abs_diff (\S+)", out).group(1))
+    assert len(ns) == repeats and golden <= 1e-5, out
+    counts = operation_count(code.network)
+    benchmark.extra_info.update(
+        net=net,
+        case=f"kernel_loop_{tanh}",
+        p50_us=float(np.median(ns)) / 1000.0,
+        min_us=min(ns) / 1000.0,
+        max_us=max(ns) / 1000.0,
+        calls_per_repeat=calls,
+        repeats=repeats,
+        golden_max_abs_diff=golden,
+        compile=" ".join([*flags, *defines, "bench.c", "policy.c", "-lm"]),
+        operations=counts,
+        cortex_m4=cortex_m4_estimate(counts),
+    )

@@ -41,6 +41,7 @@ SIM_FLAGS = {
     "--mass-scale": "X",
     "--inertia-scale": "X",
     "--motor-scale": "X",
+    "--motor-tau": "S",
     "--wind": "E,N,U",
     "--gust": "M/S",
     "--init-pos-radius": "M",
@@ -48,6 +49,7 @@ SIM_FLAGS = {
     "--init-tilt": "DEG",
     "--drag": "D",
     "--imu-noise": None,
+    "--estimator-noise": None,
     "--vehicle": "NAME",
 }
 
@@ -65,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="Seconds per episode. Default: 5 (circle: two laps, 12.6 s; success is judged on the second)",
     )
     p.add_argument("--seed", type=int, default=0, help="Seed of the start states. Default: 0")
-    p.add_argument("--backend", choices=("onnxruntime", "numpy"), default="numpy", help="Default: numpy")
+    p.add_argument("--backend", choices=("onnxruntime", "numpy", "c"), default="numpy", help="Default: numpy")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True, help="(default)")
     mode.add_argument("--realtime", dest="lockstep", action="store_false", help="Run on the wall clock.")

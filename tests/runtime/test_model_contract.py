@@ -4,9 +4,9 @@ A policy file is a flight-critical input from someone else's disk. Whatever is w
 (missing, empty, random bytes, truncated, weights stored beside it, metadata from another schema or
 layout, golden vectors that do not replay, a graph whose inputs are not the contract's), `load_policy`
 must raise `ModelContractError` (a ValueError) naming what was expected and what was found: never an
-exception from inside onnx / onnxruntime / protobuf, never a policy that flies anyway. Both backends
-are checked wherever a file is loaded. At `act()`, an observation of the wrong size raises
-`ObservationShapeError` naming the expected shape.
+exception from inside onnx / onnxruntime / protobuf, never a policy that flies anyway. Every backend
+is checked wherever a file is loaded (the c backend where a C compiler is installed). At `act()`,
+an observation of the wrong size raises `ObservationShapeError` naming the expected shape.
 """
 
 import json
@@ -20,10 +20,17 @@ import pytest
 from onnx import numpy_helper
 
 from quadpilot.runtime.backends import BACKENDS, ObservationShapeError, load_policy
+from quadpilot.runtime.cbackend import find_compiler
 from quadpilot.runtime.model import SCHEMA, ModelContractError
 
 HOVER = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"
 OBS_DIM = 18  # hover layout
+# the c backend compiles the file's C with the system C compiler: skipped where there is none
+HAS_CC = find_compiler() is not None
+BACKEND_PARAMS = [
+    pytest.param(b, marks=pytest.mark.skipif(not HAS_CC, reason="the c backend needs a C compiler")) if b == "c" else b
+    for b in BACKENDS
+]
 
 
 # --- helpers ------------------------------------------------------------------------------
@@ -300,7 +307,7 @@ BAD_FILES = {
 # --- the shipped file is fine (so the refusals below are about the edits) ------------------
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_shipped_hover_file_loads_and_replays_its_golden_vectors(backend):
     policy = load_policy(HOVER, backend)
     assert policy.backend == backend
@@ -308,7 +315,7 @@ def test_shipped_hover_file_loads_and_replays_its_golden_vectors(backend):
     assert policy.verify_golden() <= 1e-5
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_an_unedited_round_trip_through_onnx_save_still_loads(tmp_path, backend):
     """The helpers' own load → save path changes nothing the contract looks at."""
     load_policy(save(hover_model(), tmp_path), backend)
@@ -317,7 +324,7 @@ def test_an_unedited_round_trip_through_onnx_save_still_loads(tmp_path, backend)
 # --- every bad file is refused -------------------------------------------------------------
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 @pytest.mark.parametrize("case", list(BAD_FILES))
 def test_bad_file_is_refused_with_a_contract_error(tmp_path, case, backend):
     path, match = BAD_FILES[case](tmp_path)
@@ -325,7 +332,7 @@ def test_bad_file_is_refused_with_a_contract_error(tmp_path, case, backend):
     assert str(path) in str(err), "the message names the file"
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 @pytest.mark.parametrize("case", list(BAD_FILES))
 def test_refusal_shows_no_traceback_from_onnx_onnxruntime_or_protobuf(tmp_path, case, backend):
     """What a user sees, if the error reaches the top level, is the runtime's message alone: no
@@ -342,7 +349,7 @@ def test_refusal_shows_no_traceback_from_onnx_onnxruntime_or_protobuf(tmp_path, 
         assert foreign not in shown, shown
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 @pytest.mark.parametrize(
     "key",
     [
@@ -361,7 +368,7 @@ def test_a_missing_metadata_key_is_named(tmp_path, key, backend):
     refused(save(m, tmp_path), backend, re.escape(key))
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_metadata_that_is_not_utf8_is_a_contract_error(tmp_path, backend):
     """One flipped bit in a metadata value (here the envelope's first key, "max…" → "ma\\xf8…")
     leaves the protobuf parseable but the string invalid UTF-8; protobuf then hands the value over
@@ -381,14 +388,17 @@ def test_unknown_backend_is_a_value_error_naming_the_backends():
         load_policy(HOVER, "torch")
 
 
-def test_altered_weights_are_refused_by_both_backends_independently(tmp_path):
-    """ONNX Runtime runs the graph; the NumPy backend reads the same initializers itself. Each
-    replays the golden vectors on its own, so each must notice the edit."""
+def test_altered_weights_are_refused_by_every_backend_independently(tmp_path):
+    """ONNX Runtime runs the graph; the NumPy backend reads the same initializers itself, and the
+    c backend compiles C generated from them. Each replays the golden vectors on its own, so each
+    must notice the edit."""
     m = hover_model()
     set_initializer(m, "actor.0.weight", initializer(m, "actor.0.weight") + np.float32(0.1))
     path = save(m, tmp_path)
-    messages = [str(refused(path, b, r"golden vectors")) for b in BACKENDS]
-    assert "onnxruntime backend" in messages[0] and "numpy backend" in messages[1]
+    backends = [b for b in BACKENDS if b != "c" or HAS_CC]
+    messages = [str(refused(path, b, r"golden vectors")) for b in backends]
+    for backend, message in zip(backends, messages, strict=True):
+        assert f"{backend} backend" in message
 
 
 # --- the LSTM variant ----------------------------------------------------------------------
@@ -409,7 +419,7 @@ def lstm_onnx(tmp_path_factory):
     return path
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_lstm_file_loads_with_explicit_recurrent_state(lstm_onnx, backend):
     policy = load_policy(lstm_onnx, backend)
     info = policy.info
@@ -426,14 +436,14 @@ def test_lstm_file_loads_with_explicit_recurrent_state(lstm_onnx, backend):
     np.testing.assert_allclose(again, info.golden_action, atol=1e-5)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_lstm_file_that_claims_to_be_an_mlp_is_refused(lstm_onnx, tmp_path, backend):
     m = onnx.load(str(lstm_onnx))
     edit_json_meta(m, "quadpilot.architecture", lambda a: a.update(kind="mlp"))
     refused(save(m, tmp_path), backend, r"expected \['obs'\].*found \['obs', 'h_in', 'c_in'\]")
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_lstm_file_with_a_renamed_state_input_is_refused(lstm_onnx, tmp_path, backend):
     m = onnx.load(str(lstm_onnx))
     rename_input(m, "h_in", "hidden")
@@ -443,7 +453,7 @@ def test_lstm_file_with_a_renamed_state_input_is_refused(lstm_onnx, tmp_path, ba
 # --- act(): the observation's shape --------------------------------------------------------
 
 
-@pytest.fixture(scope="module", params=BACKENDS)
+@pytest.fixture(scope="module", params=BACKEND_PARAMS)
 def hover_policy(request):
     return load_policy(HOVER, request.param)
 

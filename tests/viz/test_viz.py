@@ -359,3 +359,62 @@ for call, out in ((viz.plot_flight, "/a.png"), (viz.render_flight_video, "/a.gif
     assert out.returncode == 0, out.stderr
     expected = "plotting needs matplotlib: pip install 'quadpilot[train]' (or pip install matplotlib)"
     assert out.stdout.splitlines() == [expected, expected]
+
+
+# --- montage -----------------------------------------------------------------------------------
+
+
+def panels_of(rgb: np.ndarray, n: int) -> list[np.ndarray]:
+    """The n side-by-side panels of a montage frame, the title strip included."""
+    width = rgb.shape[1] // n
+    return [rgb[:, k * width + 2 : (k + 1) * width - 2] for k in range(n)]
+
+
+def test_montage_has_the_frames_and_panels_on_one_clock(tmp_path, pil):
+    from quadpilot.viz import render_montage
+
+    early = hover(seconds=1.2, start=(1.5, -1.0, 0.6), label="early")  # ends first, like a crash
+    middle = hover(seconds=2.0, start=(1.0, 0.5, 1.5), label="middle")
+    final = circle(seconds=2.0)
+    fps, size, n = 10, (450, 200), 3
+    out = render_montage(
+        [early, middle, final], ["0 steps\ncrashed", "40k steps", "1M steps"], tmp_path / "m.gif", fps=fps, size_px=size
+    )
+    frames = []
+    with pil.open(out) as im:
+        assert im.size == size
+        for k in range(im.n_frames):
+            im.seek(k)
+            frames.append(np.asarray(im.convert("RGB"), dtype=float))
+    assert len(frames) == math.floor(final.duration * fps + 1e-9) + 1  # the longest flight sets the length
+    assert out.stat().st_size < 500_000
+    assert (frames[0][2, 2] == 255).all(), "the background is not pure white"
+    for k, f in enumerate(frames):
+        for i, panel in enumerate(panels_of(f, n)):
+            assert_not_blank(panel, f"frame {k}, panel {i}")
+    mid = panels_of(frames[len(frames) // 2], n)
+    for (i, a), (j, b) in itertools.combinations(enumerate(mid), 2):
+        assert np.abs(a - b).mean() > 1.0, f"panels {i} and {j} look the same"
+    # after the early flight ended its panel holds still while the others move on
+    last, before = panels_of(frames[-1], n), panels_of(frames[-2], n)
+    assert np.abs(last[0] - before[0]).mean() < 0.05
+    assert np.abs(last[1] - before[1]).mean() > 0.05 and np.abs(last[2] - before[2]).mean() > 0.05
+    red = (frames[-1][..., 0] > 200) & (frames[-1][..., 1] < 60) & (frames[-1][..., 2] < 60)
+    assert red[:, : size[0] // n].sum() > 20, "the ended panel does not say so"
+
+
+def test_montage_rejects_bad_calls(tmp_path):
+    pytest.importorskip("matplotlib")
+    from quadpilot.viz import render_montage
+
+    with pytest.raises(ValueError, match="non-empty list"):
+        render_montage([], [], tmp_path / "m.gif")
+    with pytest.raises(ValueError, match="non-empty list"):
+        render_montage(hover(), None, tmp_path / "m.gif")
+    with pytest.raises(ValueError, match="2 traces need 2 labels"):
+        render_montage([hover(), hover()], ["one"], tmp_path / "m.gif")
+    with pytest.raises(ValueError, match="every entry must be a FlightTrace"):
+        render_montage([hover(), "x"], None, tmp_path / "m.gif")
+    with pytest.raises(ValueError, match=r"\.gif or \.mp4"):
+        render_montage([hover()], None, tmp_path / "m.png")
+    assert not list(tmp_path.iterdir())

@@ -76,14 +76,21 @@ def step(
     params: ParamBatch,
     dt: float = DT,
     substeps: int = 1,
+    force: np.ndarray | None = None,
+    torque: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Advance N drones by `dt` with the motor command held; returns new (state, rotor).
 
     state (N, 12), rotor (N, 4), command (N, 4) in [0, 1] (clipped here), all of one float dtype;
     params holds (N,) arrays. Inputs are not modified. Elementwise NumPy only (no BLAS), so drone i
     of a batch gets bit for bit the result of stepping it alone.
+
+    force (N, 3), N, world ENU, and torque (N, 3), N·m, body FLU: optional external force and
+    moment held over the step (wind through drag, a push; `core.randomization`), added to the
+    rotors' and gravity's. None (the default) costs nothing.
     """
     _check(state, rotor, command, params)
+    ext = None if force is None and torque is None else _external(force, torque, params, state.dtype)
     h = dt / substeps
     # Work on rows (12, N): contiguous per quantity, which is what elementwise NumPy is fast on.
     s = list(np.ascontiguousarray(state.T))
@@ -91,8 +98,26 @@ def step(
     u = list(np.ascontiguousarray(np.clip(command, 0.0, 1.0).T))
     d = _derived(params, h, state.dtype)
     for _ in range(substeps):
-        s, w = _substep(s, w, u, d, h)
+        s, w = _substep(s, w, u, d, h, ext)
     return np.stack(s, axis=1), np.stack(w, axis=1)
+
+
+def _external(force, torque, params: ParamBatch, dtype) -> tuple:
+    """Rows of the external acceleration (force/m, m/s²) and moment (N·m), in the state dtype;
+    None for a part not given."""
+    n = params.n
+    acc = mom = None
+    if force is not None:
+        force = np.asarray(force)
+        if force.shape != (n, 3):
+            raise ValueError(f"force must have shape ({n}, 3) (N, world ENU), got {force.shape}")
+        acc = tuple(np.ascontiguousarray((force / params.mass[:, None]).T, dtype=dtype))
+    if torque is not None:
+        torque = np.asarray(torque)
+        if torque.shape != (n, 3):
+            raise ValueError(f"torque must have shape ({n}, 3) (N·m, body FLU), got {torque.shape}")
+        mom = tuple(np.ascontiguousarray(torque.T, dtype=dtype))
+    return acc, mom
 
 
 def _derived(params: ParamBatch, h: float, dtype) -> _Derived:
@@ -128,7 +153,7 @@ class _Derived:
             self.drag_over_m = c(p.drag / p.mass)
 
 
-def _substep(s, w, u, d: _Derived, h: float):
+def _substep(s, w, u, d: _Derived, h: float, ext: tuple | None = None):
     x, y, z, vx, vy, vz, phi, th, psi, p, q, r = s
     if d.lag:
         w = [ui + d.decay * (wi - ui) for wi, ui in zip(w, u, strict=True)]
@@ -139,6 +164,8 @@ def _substep(s, w, u, d: _Derived, h: float):
     tx = d.a * (-f0 + f1 + f2 - f3)  # thrust on the left rotors (1, 2) lifts the left side: +x
     ty = d.a * (-f0 + f1 - f2 + f3)  # rear rotors (1, 3) pitch the nose down (+y in FLU)
     tz = d.k_m * (-f0 - f1 + f2 + f3)  # CCW rotors (0, 1) push the body clockwise (−z)
+    if ext is not None and ext[1] is not None:  # external moment, body FLU
+        tx, ty, tz = tx + ext[1][0], ty + ext[1][1], tz + ext[1][2]
 
     # Euler's rotational equation I·ω̇ = τ − ω × (I·ω), diagonal I.
     p1 = p + h * (tx - d.izz_iyy * q * r) * d.inv_ixx
@@ -166,6 +193,8 @@ def _substep(s, w, u, d: _Derived, h: float):
         ax = ax - d.drag_over_m * vx
         ay = ay - d.drag_over_m * vy
         az = az - d.drag_over_m * vz
+    if ext is not None and ext[0] is not None:  # external force / m, world ENU
+        ax, ay, az = ax + ext[0][0], ay + ext[0][1], az + ext[0][2]
     hh = 0.5 * h * h
     x1, y1, z1 = x + h * vx + hh * ax, y + h * vy + hh * ay, z + h * vz + hh * az
     vx1, vy1, vz1 = vx + h * ax, vy + h * ay, vz + h * az

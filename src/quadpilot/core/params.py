@@ -139,7 +139,10 @@ _BATCH_FIELDS = ("mass", "ixx", "iyy", "izz", "k_f", "k_m", "arm", "omega_max", 
 class ParamBatch:
     """Physical parameters of N drones, each field an array of shape (N,).
 
-    Build with `ParamBatch.from_preset(preset, n)`; randomise with `scaled`.
+    Build with `ParamBatch.from_preset(preset, n)`; randomise per drone with `with_entries`
+    (`core.randomization`). The arrays are read-only copies: `core.dynamics` caches constants
+    derived from them on the batch object, so a batch must never change in place; a changed batch
+    is a new object, with an empty cache.
     """
 
     mass: np.ndarray
@@ -153,6 +156,12 @@ class ParamBatch:
     motor_tau: np.ndarray
     drag: np.ndarray
     gravity: float = GRAVITY
+
+    def __post_init__(self) -> None:
+        for k in _BATCH_FIELDS:
+            a = np.array(getattr(self, k), copy=True)
+            a.flags.writeable = False  # see the class docstring: the derived-constant cache
+            object.__setattr__(self, k, a)
 
     @classmethod
     def from_preset(cls, preset: VehicleParams, n: int, dtype=np.float64) -> ParamBatch:
@@ -171,3 +180,18 @@ class ParamBatch:
 
     def astype(self, dtype) -> ParamBatch:
         return replace(self, **{k: getattr(self, k).astype(dtype) for k in _BATCH_FIELDS})
+
+    def with_entries(self, idx, **values) -> ParamBatch:
+        """A new batch whose drones `idx` (index array or boolean mask) get `values` for the named
+        fields (scalars or arrays matching `idx`, cast to each field's dtype); this one is left as
+        it is. Being a new object, it carries none of the constants `core.dynamics` derived and
+        cached for this one."""
+        bad = set(values) - set(_BATCH_FIELDS)
+        if bad:
+            raise ValueError(f"no per-drone field(s) {sorted(bad)}; fields are {list(_BATCH_FIELDS)}")
+        new = {}
+        for k, v in values.items():
+            a = getattr(self, k).copy()
+            a[idx] = v
+            new[k] = a
+        return replace(self, **new)

@@ -31,7 +31,7 @@ from torch.nn import functional as F
 
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
-from quadpilot.train.checkpoint import TrainedPolicy, atomic_write, load_checkpoint
+from quadpilot.train.checkpoint import CheckpointError, TrainedPolicy, atomic_write, load_checkpoint
 from quadpilot.train.envs import QuadBatch
 
 ONNX_SCHEMA = "quadpilot.onnx/1"
@@ -51,7 +51,7 @@ class _Deployable(nn.Module):
 
     def __init__(self, policy: TrainedPolicy) -> None:
         super().__init__()
-        self.normalize = bool(policy.ppo_config.normalize_obs)
+        self.normalize = bool(policy.normalize_obs)
         rms = policy.obs_rms
         self.register_buffer("obs_mean", torch.as_tensor(rms.mean, dtype=torch.float32))
         self.register_buffer("obs_inv_std", torch.as_tensor(1.0 / rms.std, dtype=torch.float32))
@@ -87,9 +87,19 @@ class DeployablePolicy(_Deployable):
     def __init__(self, policy: TrainedPolicy) -> None:
         super().__init__(policy)
         self.actor = policy.model.actor
+        # SAC (issue 7): the actor ends in Tanh, a = tanh(z); then u·√(1 + a) is computed as
+        # u·√(2p/(p + q)), p = e^(2·min(z, 0)), q = e^(−2·max(z, 0)): the same function without the
+        # cancellation of 1 + tanh(z) near a = −1 (motor off), where float32 leaves 1 + a at 0 or
+        # 6e-8 and the √ turns that into ~1e-4 of command that two runtimes would not agree on.
+        self.squash = isinstance(self.actor[-1], nn.Tanh)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return self._command(self.actor(self._normalized(obs)))
+        x = self._normalized(obs)
+        if not self.squash:
+            return self._command(self.actor(x))
+        z = self.actor[:-1](x)
+        p, q = torch.exp(2.0 * torch.clamp(z, max=0.0)), torch.exp(-2.0 * torch.clamp(z, min=0.0))
+        return torch.clamp(self.u_hover * torch.sqrt(2.0 * p / (p + q)), 0.0, 1.0)
 
     def spec(self) -> dict:
         layers, mods = [], list(self.actor.named_children())
@@ -133,6 +143,11 @@ class DeployableRecurrentPolicy(_Deployable):
 
 
 def deployable(policy: TrainedPolicy) -> DeployablePolicy | DeployableRecurrentPolicy:
+    if getattr(policy, "obs_history", 1) > 1:  # the runtime knows no stacked-history layout
+        raise CheckpointError(
+            f"{policy.source}: an observation-history policy (obs_history={policy.obs_history}) is evaluated "
+            "in-process only; export an MLP or LSTM policy"
+        )
     return (DeployableRecurrentPolicy if policy.recurrent else DeployablePolicy)(policy).eval()
 
 
@@ -141,6 +156,11 @@ def reference_commands(policy: TrainedPolicy, obs: np.ndarray, starts: np.ndarra
     action-to-command map (float64). MLP: obs (N, obs_dim) → (N, 4). Recurrent: obs (T, B, obs_dim)
     with episode starts (T, B), run through the training class's fused nn.LSTM → (T, B, 4)."""
     u_hover = policy.env_config.params.hover_command
+    if not policy.recurrent and getattr(policy.model, "squash", None) == "tanh":
+        # SAC: the network's z (float32), then tanh and the map in float64 (see DeployablePolicy)
+        with torch.inference_mode():
+            z = policy.model.actor[:-1](policy._input(obs)).numpy().astype(np.float64)
+        return action_to_command(np.tanh(z), u_hover)
     if not policy.recurrent:
         return action_to_command(policy(obs).astype(np.float64), u_hover)
     t, b, d = obs.shape
@@ -361,12 +381,16 @@ def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: in
     return meta
 
 
-def check_parity(checkpoint: str | os.PathLike, onnx_path: str | os.PathLike, n: int = 10_000) -> dict:
+def check_parity(
+    checkpoint: str | os.PathLike, onnx_path: str | os.PathLike, n: int = 10_000, extra_policies: dict | None = None
+) -> dict:
     """Max abs difference of the motor commands between the exported torch module and, on the
-    same inputs: a batched ONNX Runtime session, the runtime's two batch-1 backends (which also
-    check the file's contract and golden vectors on load), and the training-side path (the
-    trainer's network + core.action_to_command). MLP: `n` observations from rollouts and range
-    edges. LSTM: n/500 sequences of 500 steps with a state reset half-way (`parity_sequences`)."""
+    same inputs: a batched ONNX Runtime session, the runtime's numpy and onnxruntime batch-1
+    backends (which also check the file's contract and golden vectors on load), any runtime
+    `Policy` in `extra_policies` (name → policy, e.g. the compiled C kernel; reported as
+    `torch_vs_runtime_<name>`), and the training-side path (the trainer's network +
+    core.action_to_command). MLP: `n` observations from rollouts and range edges. LSTM: n/500
+    sequences of 500 steps with a state reset half-way (`parity_sequences`)."""
     import onnxruntime as ort
 
     from quadpilot.runtime.backends import load_policy as load_runtime_policy
@@ -377,6 +401,7 @@ def check_parity(checkpoint: str | os.PathLike, onnx_path: str | os.PathLike, n:
     opts.intra_op_num_threads = 1
     session = ort.InferenceSession(str(onnx_path), opts, providers=["CPUExecutionProvider"])
     backends = {b: load_runtime_policy(onnx_path, b) for b in ("onnxruntime", "numpy")}
+    backends |= extra_policies or {}
     if not module.recurrent:
         obs = parity_observations(policy, n)
         with torch.inference_mode():

@@ -1,4 +1,5 @@
-"""Sensor models of the simulator: IMU (with optional white noise), magnetometer, barometer.
+"""Sensor models of the simulator: IMU, magnetometer, barometer. The IMU's noise (and the state
+estimate's) is `quadpilot.core.sensor_noise`, the model the training environments use.
 
 All vectors are in the project's frames (world ENU, body FLU, SI units); `quadpilot.link.wire`
 turns them into HIL_SENSOR's FRD fields.
@@ -6,11 +7,10 @@ turns them into HIL_SENSOR's FRD fields.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from quadpilot.core.frames import euler_to_rotmat
+from quadpilot.core.sensor_noise import ADIS16448
 
 MAG_NED_GAUSS = (0.214, 0.012, 0.433)
 """gauss, Earth's field (north, east, down) at PX4's default SITL home (Zürich, 47.40° N 8.55° E):
@@ -19,12 +19,12 @@ declination ≈ 3° east), rounded. PX4 checks the measured field's direction an
 own WMM tables (PX4-Autopilot src/lib/world_magnetic_model), so a much different value would raise
 its magnetometer consistency warnings. The field is constant: it does not follow `Home`."""
 
-# White-noise densities of an ADIS16448 IMU, the defaults of PX4's Gazebo IMU plugin
-# (PX4-SITL_gazebo-classic include/gazebo_imu_plugin.h, from ethz-asl/rotors_simulator), which
-# turns a density into a per-sample standard deviation as density / √dt.
-GYRO_NOISE_DENSITY = 2.0 * 35.0 / 3600.0 / 180.0 * math.pi
+# White-noise densities of an ADIS16448 IMU, the defaults of PX4's Gazebo IMU plugin, which turns a
+# density into a per-sample standard deviation as density / √dt: `core.sensor_noise.ADIS16448`
+# (with its bias model) is the one source; these names are kept for readers of this module.
+GYRO_NOISE_DENSITY = ADIS16448.gyro_noise_density
 """rad/s/√Hz, gyroscope white noise (≈ 3.39e-4; 3.4e-3 rad/s per sample at 100 Hz)."""
-ACCEL_NOISE_DENSITY = 2.0 * 2.0e-3
+ACCEL_NOISE_DENSITY = ADIS16448.accel_noise_density
 """m/s²/√Hz, accelerometer white noise (0.04 m/s² per sample at 100 Hz)."""
 
 # International Standard Atmosphere, troposphere (ICAO Doc 7488 / ISO 2533), geopotential ≈

@@ -6,8 +6,10 @@ connection. Each step it sends, in this order:
 
 1. HIL_GPS, every `gps_every` steps (step 0 included);
 2. HIL_STATE_QUATERNION, the ground truth (with the body specific force as its acceleration);
-3. HIL_SENSOR, last, because a PX4 peer steps on it: gyro (body rates), accelerometer (specific
-   force), magnetometer, barometer;
+3. ODOMETRY, with `estimator_noise` only: the state estimate, "what an EKF would output" (the
+   truth plus `core.sensor_noise`'s estimator errors; the node flies on it, and is judged on 2);
+4. HIL_SENSOR, last, because a PX4 peer steps on it: gyro (body rates), accelerometer (specific
+   force), magnetometer, barometer (with `imu_noise`: `core.sensor_noise`'s IMU model);
 
 and then, in lockstep, waits for exactly one HIL_ACTUATOR_CONTROLS, applies it and advances the
 physics by one `dt`. In realtime mode it advances on the host's monotonic clock instead, holding
@@ -42,6 +44,7 @@ from quadpilot.core import dynamics
 from quadpilot.core.mission import TASKS, Mission, plan_episode
 from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
 from quadpilot.core.reward import RewardConfig, crashed
+from quadpilot.core.sensor_noise import SensorNoise, SensorNoiseState, get_sensor_noise
 from quadpilot.core.start import sample_start_states
 from quadpilot.link import wire
 from quadpilot.link.transport import (
@@ -101,6 +104,8 @@ class SimConfig:
     """Multiplies the preset's three principal inertias."""
     motor_scale: float = 1.0
     """Multiplies the rotor thrust coefficient k_f (weaker or stronger motors)."""
+    motor_tau_s: float | None = None
+    """s, first-order motor time constant replacing the preset's (0 for the shipped presets)."""
     wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """m/s, constant wind velocity in world ENU. It acts through linear drag, F = drag·(wind − v)."""
     gust: float = 0.0
@@ -112,9 +117,14 @@ class SimConfig:
     frame. None: the preset's own value (0 for the shipped presets, as in training), or
     DEFAULT_WIND_DRAG if that is 0 and there is wind, so that wind alone does something."""
     imu_noise: bool = False
-    """Add white noise to the gyro and accelerometer of HIL_SENSOR: the ADIS16448 densities of
-    PX4's Gazebo IMU plugin, σ = density/√dt (3.4e-3 rad/s and 0.04 m/s² at 100 Hz). The ground
-    truth in HIL_STATE_QUATERNION stays exact."""
+    """Noisy gyro and accelerometer in HIL_SENSOR: the IMU of the vehicle's `core.sensor_noise`
+    preset (seed: ADIS16448 with PX4's Gazebo IMU plugin defaults, white noise σ = density/√dt, 3.4e-3
+    rad/s and 0.04 m/s² at 100 Hz, plus turn-on bias and bias random walk; crazyflie: BMI088), the
+    model the training environments use. The ground truth in HIL_STATE_QUATERNION stays exact."""
+    estimator_noise: bool = False
+    """Also send ODOMETRY each step: the state as an estimator would report it (the vehicle's
+    `core.sensor_noise` estimator model: cm-level position, velocity and attitude errors), which the
+    node then flies on instead of the ground truth; HIL_STATE_QUATERNION stays exact (judging)."""
     dt: float = dynamics.DT
     """s, simulation step (0.01 s, the control step the policies were trained at)."""
     task: str = "hover"
@@ -182,6 +192,8 @@ class SimConfig:
             v = getattr(self, name)
             if len(v) != 3 or not all(math.isfinite(float(x)) for x in v):
                 raise ValueError(f"{name} must be three finite numbers (x, y, z), got {v!r}")
+        if self.motor_tau_s is not None and not (math.isfinite(self.motor_tau_s) and self.motor_tau_s >= 0):
+            raise ValueError(f"motor_tau_s must be a finite number ≥ 0 (s), got {self.motor_tau_s!r}")
         if self.drag is not None and not (math.isfinite(self.drag) and self.drag >= 0):
             raise ValueError(f"drag must be a finite number ≥ 0 (N·s/m), got {self.drag!r}")
         for name, lo in (("gps_every", 1), ("max_steps", 1), ("seed", 0)):
@@ -217,17 +229,28 @@ class SimConfig:
         """The simulated airframe: the preset with the scales and the drag applied."""
         s = self.inertia_scale
         scaled = get_preset(self.vehicle).scaled(mass=self.mass_scale, ixx=s, iyy=s, izz=s, k_f=self.motor_scale)
+        if self.motor_tau_s is not None:
+            scaled = dataclasses.replace(scaled, motor_tau=self.motor_tau_s)
         return dataclasses.replace(scaled, drag=self.effective_drag)
 
     @property
+    def sensor_noise(self) -> SensorNoise | None:
+        """The `core.sensor_noise` model in force: the vehicle's preset with the parts switched on."""
+        if not (self.imu_noise or self.estimator_noise):
+            return None
+        return get_sensor_noise(self.vehicle).with_parts(imu=self.imu_noise, estimator=self.estimator_noise)
+
+    @property
     def gyro_noise_std(self) -> float:
-        """rad/s per sample, 0 without `imu_noise`."""
-        return sensors.GYRO_NOISE_DENSITY / math.sqrt(self.dt) if self.imu_noise else 0.0
+        """rad/s per sample (white part), 0 without `imu_noise`."""
+        imu = get_sensor_noise(self.vehicle).imu
+        return imu.gyro_noise_density / math.sqrt(self.dt) if self.imu_noise and imu else 0.0
 
     @property
     def accel_noise_std(self) -> float:
-        """m/s² per sample, 0 without `imu_noise`."""
-        return sensors.ACCEL_NOISE_DENSITY / math.sqrt(self.dt) if self.imu_noise else 0.0
+        """m/s² per sample (white part), 0 without `imu_noise`."""
+        imu = get_sensor_noise(self.vehicle).imu
+        return imu.accel_noise_density / math.sqrt(self.dt) if self.imu_noise and imu else 0.0
 
     def mission(self, episode: int) -> Mission:
         return plan_episode(self.task, self.seed, episode, self.dt)
@@ -415,6 +438,7 @@ class Simulator:
         self._reward = RewardConfig()
         self._target = np.asarray(cfg.target, np.float64)
         self._signing = None  # signing state carried from one episode's link to the next
+        self._noise: SensorNoiseState | None = None  # this episode's sensor noise processes
 
     @property
     def address(self) -> Address | None:
@@ -483,6 +507,11 @@ class Simulator:
         plant = Plant(cfg.vehicle_params, cfg.dt, cfg.wind, cfg.gust, cfg.gust_tau_s, rng)
         self._target = cfg.area_centre(k)
         plant.reset(state0)
+        spec = cfg.sensor_noise
+        self._noise = None if spec is None else SensorNoiseState(spec, 1, cfg.dt, rng)
+        if self._noise is not None:
+            self._noise.reset()
+            self._variances = self._estimate_variances(spec) if spec.estimator is not None else None
         n, wall0, end = 0, time.monotonic(), "max_steps"
         try:
             self._send_step(link, plant, 0, rng)
@@ -605,9 +634,15 @@ class Simulator:
         accel = plant.specific_force_flu()
         link.mav.hil_state_quaternion_send(**wire.hil_state_quaternion_fields(state, cfg.home, t_us, accel))
         gyro = state[9:12].copy()
-        if cfg.imu_noise:
-            gyro += rng.normal(0.0, cfg.gyro_noise_std, 3)
-            accel = accel + rng.normal(0.0, cfg.accel_noise_std, 3)
+        noise = self._noise
+        if noise is not None:  # core.sensor_noise, as in training: advance one dt, then measure
+            if n > 0:
+                noise.step()
+            if cfg.imu_noise:
+                gyro, accel = noise.gyro(gyro[None])[0], noise.accel(accel[None])[0]
+            if cfg.estimator_noise:
+                estimate = noise.estimate(state[None])[0]
+                link.mav.odometry_send(**wire.odometry_fields(estimate, t_us, *self._variances))
         alt = cfg.home.alt_m + float(state[2])
         link.mav.hil_sensor_send(
             **wire.hil_sensor_fields(
@@ -621,6 +656,15 @@ class Simulator:
             )
         )
         link.flush()
+
+    def _estimate_variances(self, spec: SensorNoise) -> tuple[list[float], list[float]]:
+        """Stationary variances of the estimate (pose x, y, z, roll, pitch, yaw; velocity and rates),
+        NED order, for ODOMETRY's covariance diagonals."""
+        est, imu = spec.estimator, spec.imu
+        p = est.pos_white**2 + est.pos_drift**2
+        v = est.vel_white**2 + est.vel_drift**2
+        g = (imu.gyro_noise_density**2 / self.cfg.dt + imu.gyro_turn_on_bias**2) if imu else 0.0
+        return [p, p, p, est.tilt_drift**2, est.tilt_drift**2, est.yaw_drift**2], [v, v, v, g, g, g]
 
     def _receive(self, link, timeout: float, ep: _Episode | None):
         """The one receive point: the next message, dispatched; returns it if it is a
@@ -762,6 +806,7 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
     p.add_argument("--mass-scale", type=_positive, default=d.mass_scale, help="multiplies the mass")
     p.add_argument("--inertia-scale", type=_positive, default=d.inertia_scale, help="multiplies the inertias")
     p.add_argument("--motor-scale", type=_positive, default=d.motor_scale, help="multiplies the thrust coefficient k_f")
+    p.add_argument("--motor-tau", type=_non_negative, default=None, metavar="S", help="motor time constant, s")
     p.add_argument("--wind", type=_wind, default=d.wind, metavar="E,N,U", help="constant wind, m/s world ENU")
     p.add_argument("--gust", type=_non_negative, default=d.gust, metavar="M/S", help="gust std per axis, m/s")
     p.add_argument("--gust-tau", type=_positive, default=d.gust_tau_s, metavar="S", help="gust correlation time, s")
@@ -777,7 +822,17 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         default=None,
         help=f"N·s/m linear drag (default: preset's, or {DEFAULT_WIND_DRAG} with wind)",
     )
-    p.add_argument("--imu-noise", action="store_true", help="white noise on gyro and accelerometer")
+    p.add_argument(
+        "--imu-noise",
+        action="store_true",
+        help="IMU noise (core.sensor_noise, the vehicle's IMU): white noise, turn-on bias and bias random walk",
+    )
+    p.add_argument(
+        "--estimator-noise",
+        action="store_true",
+        help="send ODOMETRY, the state as an EKF would output it (cm-level errors, core.sensor_noise); the "
+        "node flies on it, and is judged on the exact HIL_STATE_QUATERNION",
+    )
     p.add_argument(
         "--rate",
         type=_positive,
@@ -814,6 +869,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             mass_scale=args.mass_scale,
             inertia_scale=args.inertia_scale,
             motor_scale=args.motor_scale,
+            motor_tau_s=args.motor_tau,
             wind=args.wind,
             gust=args.gust,
             gust_tau_s=args.gust_tau,
@@ -823,6 +879,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             init_rate=args.init_rate,
             drag=args.drag,
             imu_noise=args.imu_noise,
+            estimator_noise=args.estimator_noise,
             dt=1.0 / args.rate,
             seed=args.seed,
             episodes=args.episodes,

@@ -310,6 +310,86 @@ def hil_gps_fields(state: np.ndarray, home: Home, time_usec: int) -> dict:
     }
 
 
+# --- a state estimate: ODOMETRY (simulator → autopilot, with --estimator-noise) ----------------
+ODOMETRY_FRAME = 1  # MAV_FRAME_LOCAL_NED: position and attitude, origin at home
+ODOMETRY_CHILD_FRAME = 12  # MAV_FRAME_BODY_FRD: velocity and rates, as PX4 publishes its own ODOMETRY
+ODOMETRY_ESTIMATOR = 5  # MAV_ESTIMATOR_TYPE_GPS_INS: "estimator integrating GPS and inertial sensing"
+_COV_DIAGONAL = (0, 6, 11, 15, 18, 20)  # of a 6×6 upper-right triangle stored row by row (21 floats)
+
+
+def _covariance(variances) -> list[float]:
+    """MAVLink's 21-float covariance with the given 6 variances on the diagonal; NaN first
+    (unknown, as the message definition says) when None."""
+    cov = [0.0] * 21
+    if variances is None:
+        cov[0] = math.nan
+        return cov
+    for i, v in zip(_COV_DIAGONAL, variances, strict=True):
+        cov[i] = float(v)
+    return cov
+
+
+def odometry_fields(state: np.ndarray, time_usec: int, pose_variance=None, velocity_variance=None) -> dict:
+    """Keyword arguments of `mav.odometry_send` for a state *estimate* (12-state ENU/FLU, SI):
+    position in local NED metres from home (floats: no 1 cm quantisation), attitude quaternion
+    body FRD → NED, velocity and body rates in body FRD. The variances (6 each: x, y, z, roll,
+    pitch, yaw and vx, vy, vz, rates) go on the covariance diagonals; None: unknown."""
+    x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r = (float(v) for v in state)
+    rot = euler_to_rotmat(roll, pitch, yaw)  # body FLU → ENU
+    v_body = flu_to_frd(rot.T @ np.array([vx, vy, vz]))
+    return {
+        "time_usec": int(time_usec),
+        "frame_id": ODOMETRY_FRAME,
+        "child_frame_id": ODOMETRY_CHILD_FRAME,
+        "x": y,  # NED north = ENU y
+        "y": x,
+        "z": -z,
+        "q": list(_ned_frd_quaternion(roll, pitch, yaw)),
+        "vx": float(v_body[0]),
+        "vy": float(v_body[1]),
+        "vz": float(v_body[2]),
+        "rollspeed": p,
+        "pitchspeed": -q,
+        "yawspeed": -r,
+        "pose_covariance": _covariance(pose_variance),
+        "velocity_covariance": _covariance(velocity_variance),
+        "reset_counter": 0,
+        "estimator_type": ODOMETRY_ESTIMATOR,
+        "quality": 100,
+    }
+
+
+def state_from_odometry(msg) -> np.ndarray:
+    """An ODOMETRY message in the frames `odometry_fields` writes (pose LOCAL_NED, twist BODY_FRD)
+    → 12-state ENU/FLU, SI. Raises ValueError for other frames: guessing a frame would fly the
+    vehicle on a wrong state."""
+    if msg.frame_id != ODOMETRY_FRAME or msg.child_frame_id != ODOMETRY_CHILD_FRAME:
+        raise ValueError(
+            f"ODOMETRY frames {msg.frame_id}/{msg.child_frame_id}, expected {ODOMETRY_FRAME} (LOCAL_NED) / "
+            f"{ODOMETRY_CHILD_FRAME} (BODY_FRD)"
+        )
+    rot = rotmat_ned_frd_to_enu_flu(quaternion_to_rotmat(msg.q))  # body FLU → ENU
+    roll, pitch, yaw = rotmat_to_euler(rot)
+    v_world = rot @ frd_to_flu(np.array([msg.vx, msg.vy, msg.vz], np.float64))
+    return np.array(
+        [
+            msg.y,
+            msg.x,
+            -msg.z,
+            v_world[0],
+            v_world[1],
+            v_world[2],
+            float(roll),
+            float(pitch),
+            float(yaw),
+            msg.rollspeed,
+            -msg.pitchspeed,
+            -msg.yawspeed,
+        ],
+        np.float64,
+    )
+
+
 class NonFiniteCommand(ValueError):
     """A motor command that must never be transmitted (PX4 reads NaN as 'stop the motors')."""
 

@@ -4,16 +4,20 @@
     monitor = SafetyMonitor(load_policy("models/hover/policy.onnx", backend="numpy"))
     motors = monitor.act(obs)   # (4,) float32 in [0, 1], PX4 quad-X order
 
-Imports numpy, onnx (to read the file) and onnxruntime only: never torch or gymnasium.
+Imports numpy, onnx (to read the file) and onnxruntime only: never torch or gymnasium. The "c"
+backend needs a C compiler at load time (`cbackend`), nothing else.
 """
 
 from .backends import BACKENDS, NumpyPolicy, ObservationShapeError, OnnxRuntimePolicy, Policy, load_policy
+from .cbackend import CCompilerError, CPolicy
 from .fallback import FallbackController, FallbackGains
 from .model import ModelContractError, ModelInfo, read_model
 from .safety import ObservationLimits, SafetyMonitor
 
 __all__ = [
     "BACKENDS",
+    "CCompilerError",
+    "CPolicy",
     "FallbackController",
     "FallbackGains",
     "ModelContractError",

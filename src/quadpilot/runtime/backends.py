@@ -1,13 +1,15 @@
-"""Two interchangeable policy backends for one exported file, both batch-1 and torch-free.
+"""Interchangeable policy backends for one exported file, all batch-1 and torch-free.
 
-    policy = load_policy("models/hover/policy.onnx", backend="numpy")   # or "onnxruntime"
+    policy = load_policy("models/hover/policy.onnx", backend="numpy")   # or "onnxruntime", "c"
     policy.reset()                       # clears recurrent state (no-op for an MLP)
     motors = policy.act(obs)             # (obs_dim,) float32 → (4,) float32 in [0, 1]
 
 `OnnxRuntimePolicy` runs the graph in an ONNX Runtime session created once, single-threaded, with
 its inputs and outputs bound to preallocated buffers (I/O binding saves the per-call conversion
 of `session.run`). `NumpyPolicy` reads the weights from the same file (the initializers named in
-the file's architecture metadata) and computes the same network with NumPy. Neither knows about
+the file's architecture metadata) and computes the same network with NumPy. `cbackend.CPolicy`
+(backend "c") generates C from those same initializers (`cgen`, what `quad-export --format c`
+writes), compiles it once with the system C compiler and calls it through ctypes. None knows about
 safety: wrap them in `safety.SafetyMonitor`.
 
 `load_policy` checks the file's contract (`model.read_model`) and then replays the golden vectors
@@ -22,7 +24,7 @@ import numpy as np
 
 from .model import NUM_MOTORS, ModelContractError, ModelInfo, read_model
 
-BACKENDS = ("onnxruntime", "numpy")
+BACKENDS = ("onnxruntime", "numpy", "c")
 GOLDEN_TOLERANCE = 1e-5
 """Max abs difference in motor command allowed on the golden vectors (the export parity bar)."""
 
@@ -146,7 +148,10 @@ class NumpyPolicy(Policy):
     The map from the action head's output a to the motor command, u_hover·√(1 + clip(a, −1, 1)),
     is folded into the head's weights and bias as √(clip(u²·(a + 1), 0, 2u²)): the same function,
     three vector operations instead of five (rounding differs by ~1e-7, checked by the golden
-    vectors and the export parity test).
+    vectors and the export parity test). When the last layer's activation is tanh (a SAC policy's
+    action is tanh of its Gaussian mean z, issue 7) there is nothing to fold: u²·(1 + tanh z) is
+    computed as 2u²·p/(p + q), p = e^(2·min(z, 0)), q = e^(−2·max(z, 0)), as the exported graph
+    does (1 + tanh z cancels in float32 near a = −1, and the √ would magnify that), then clip and √.
 
     Each dense layer y = W·x + b is one `np.dot` with the bias folded in: the input vector
     carries a trailing 1 and the matrix is [Wᵀ; b]. The LSTM step (torch gate order i, f, g, o)
@@ -210,6 +215,7 @@ class NumpyPolicy(Policy):
                 self._x = prev[:d]
             self._first = prev
             self._dense = []
+            squashed = False
             for k, layer in enumerate(layers):
                 wt = w(layer["weight"])
                 b = w(layer["bias"], wt.shape[:1])
@@ -223,13 +229,19 @@ class NumpyPolicy(Policy):
                     out[-1] = 1.0
                 view = out if last else out[:-1]
                 mat = np.vstack([wt.T, b[None, :]])
-                if last:
+                squashed = last and layer.get("activation") == "tanh"
+                if last and layer.get("activation") not in (None, "tanh"):
+                    raise ModelContractError(
+                        f"{info.path}: the action head's activation {layer['activation']!r} is not one the NumPy "
+                        "backend maps to motor commands (none, or tanh)"
+                    )
+                if last and not squashed:
                     # the command map folded into the action head (float64, then rounded once):
                     # u·√(1 + clip(a, lo, hi)) = √(clip(u²·(a + 1), u²·(lo + 1), u²·(hi + 1)))
                     mat[-1] += 1.0
                     mat *= self._u_hover**2
                 mat = np.ascontiguousarray(mat, np.float32)
-                self._dense.append((prev, mat, view, _activation(layer.get("activation"))))
+                self._dense.append((prev, mat, view, None if squashed else _activation(layer.get("activation"))))
                 prev, d = out, wt.shape[0]
             if d != NUM_MOTORS:
                 raise ModelContractError(f"{info.path}: the last layer has {d} outputs, expected {NUM_MOTORS}")
@@ -237,6 +249,9 @@ class NumpyPolicy(Policy):
             # constants as float32 arrays: a ufunc converts a Python scalar on every call (~0.2 µs)
             full = lambda v, n=NUM_MOTORS: np.full(n, v, np.float32)  # noqa: E731
             u2 = self._u_hover**2
+            # a tanh head (SAC) comes before the command map, so it is not folded (see the docstring)
+            scratch = np.zeros(NUM_MOTORS, np.float32)
+            self._post = (full(0.0), full(2.0), full(-2.0), full(2.0 * u2), scratch) if squashed else None
             self._k = (full(u2 * (self._a_lo + 1.0)), full(u2 * (self._a_hi + 1.0)), full(self._c_lo), full(self._c_hi))
             if info.recurrent:
                 self._half = full(0.5, 3 * self._hidden)
@@ -266,6 +281,17 @@ class NumpyPolicy(Policy):
             if act is not None:
                 act(out)
         y = self._y
+        if self._post is not None:  # y = z, the head's output: u²·(1 + tanh z) = 2u²·p/(p + q)
+            zero, two, minus_two, two_u2, p = self._post
+            np.minimum(y, zero, out=p)
+            p *= two
+            np.exp(p, out=p)  # p = e^(2·min(z, 0)) ≤ 1
+            np.maximum(y, zero, out=y)
+            y *= minus_two
+            np.exp(y, out=y)  # q = e^(−2·max(z, 0)) ≤ 1
+            y += p
+            np.divide(p, y, out=y)
+            y *= two_u2
         lo, hi, c_lo, c_hi = self._k
         np.maximum(y, lo, out=y)  # np.clip costs 4× two ufuncs at this size
         np.minimum(y, hi, out=y)  # u²·(1 + a), a the clipped mean action
@@ -311,7 +337,8 @@ def load_policy(path: str | os.PathLike, backend: str = "onnxruntime") -> Policy
     """Check the file's contract, build the backend, and replay the golden vectors.
 
     Raises ModelContractError (a ValueError) naming what is wrong; never returns a policy that
-    failed a check."""
+    failed a check. The "c" backend also raises `cbackend.CCompilerError` (a RuntimeError and a
+    ValueError) when there is no working C compiler."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     model, info = read_model(path)
@@ -321,7 +348,12 @@ def load_policy(path: str | os.PathLike, backend: str = "onnxruntime") -> Policy
         from onnx import numpy_helper
 
         weights = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
-        policy = NumpyPolicy(info, weights)
+        if backend == "c":
+            from .cbackend import CPolicy
+
+            policy = CPolicy.from_model(info, weights)
+        else:
+            policy = NumpyPolicy(info, weights)
     worst = policy.verify_golden()
     if not worst <= GOLDEN_TOLERANCE:
         raise ModelContractError(

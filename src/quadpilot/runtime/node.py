@@ -6,6 +6,9 @@ message PX4 itself steps on, sent last in each step), with the ground truth of t
 HIL_STATE_QUATERNION and the body rates of the HIL_SENSOR gyro, it builds the observation with
 `core.observation.build_observation` (the function training used), runs the policy through the
 `SafetyMonitor`, and sends one HIL_ACTUATOR_CONTROLS (armed, lockstep flag in lockstep mode).
+When the simulator also sends ODOMETRY for the step (a state estimate, `--estimator-noise`), the
+observation is built from that estimate instead of the ground truth, which is still what the
+flight is logged and judged on.
 
 One receive point (`Link.recv`, one system call per batch of messages) dispatching on
 `get_type()`. Link loss is measured on the host's monotonic clock, never simulation time: no
@@ -199,6 +202,8 @@ class Node:
         last_heartbeat = -math.inf
         state: np.ndarray | None = None
         state_time = -1
+        estimate: np.ndarray | None = None  # ODOMETRY: the estimator's state, if the simulator sends one
+        estimate_time = -1
         last_sensor_time = -1
         received = 0
         source = "policy"
@@ -243,7 +248,7 @@ class Node:
                         continue
                     last_sensor_time = msg.time_usec
                     received += 1
-                    s = state.copy()
+                    s = (estimate if estimate_time == msg.time_usec else state).copy()
                     s[9:12] = wire.gyro_from_hil_sensor(msg)
                     k = log.steps
                     target, target_vel = (fixed, None) if targets is None else targets(k)
@@ -268,6 +273,11 @@ class Node:
                                 f"safety: {source} flying ({', '.join(sorted(monitor.events)) or 'policy'})",
                             )
                         gcs.step(k, state, msg.time_usec, True, sum(log.dropped.values()), received)
+                elif kind == "ODOMETRY":
+                    try:
+                        estimate, estimate_time = wire.state_from_odometry(msg), msg.time_usec
+                    except ValueError:
+                        log.dropped["odometry_frame"] += 1
                 elif kind == "BAD_DATA":
                     log.dropped[transport.bad_data_reason(msg)] += 1
                 elif kind.startswith("UNKNOWN_"):

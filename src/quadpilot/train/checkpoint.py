@@ -21,6 +21,9 @@ ever executed (DESIGN "Conventions"). Top-level keys:
                     last metrics, the elapsed time and the preset name here
 
 `policy.pt` (the deployable file that quad-export reads) has the same format as `checkpoint.pt`.
+Snapshots (`save_snapshot`, quad-train --snapshot-every) are `snapshots/policy-<steps>.pt`: the same
+format with the weights and normaliser of that moment and no optimizer, trainer or environment
+state (`policy_checkpoint_dict`), so each loads, exports and flies like policy.pt.
 
 Writes are atomic: a temporary file in the same directory, flushed and fsync'd, then `os.replace`,
 then the directory fsync'd, so a crash or `kill -9` leaves either the old file or the new one,
@@ -31,6 +34,7 @@ never half of one. For resuming, `save_for_resume` keeps two generations (`check
 from __future__ import annotations
 
 import copy
+import dataclasses
 import os
 import tempfile
 import time
@@ -48,6 +52,7 @@ SCHEMA = "quadpilot.checkpoint/1"
 LATEST = "checkpoint.pt"
 PREVIOUS = "checkpoint.prev.pt"
 POLICY = "policy.pt"
+SNAPSHOTS = "snapshots"
 
 REQUIRED = (
     "schema",
@@ -63,6 +68,17 @@ REQUIRED = (
     "env",
     "rng",
     "extra",
+)
+# A SAC checkpoint (quadpilot.train.sac, "algo": "sac") holds the same environment, RNG and trainer
+# entries, its actor under "model", and the critics, temperature and replay count beside them.
+SAC_REQUIRED = (
+    *(k for k in REQUIRED if k != "ppo_config"),
+    "algo",
+    "sac_config",
+    "critic",
+    "critic_target",
+    "log_alpha",
+    "replay",
 )
 # QuadBatch arrays that hold an episode in flight; restoring them lets a resumed run continue the
 # very episodes the checkpoint interrupted instead of resetting every drone.
@@ -127,11 +143,13 @@ def ppo_state_dict(ppo: PPO) -> dict:
             "ep_lengths": [int(x) for x in ppo.ep_lengths],
             "ep_success": [bool(x) for x in ppo.ep_success],
             "obs": _tensor(ppo._obs),
+            "extra_state": plain(ppo.extra_state()),  # LSTM states, observation history, sensor noise
         },
         "env": {
             **{name: _tensor(getattr(batch, name)) for name in _ENV_ARRAYS},
             "target_radius": float(batch.target_radius),
             "started": bool(ppo.env._started),
+            **_randomization_state(batch),
         },
         "rng": {
             "env": copy.deepcopy(ppo.env._rng.bit_generator.state),
@@ -139,6 +157,31 @@ def ppo_state_dict(ppo: PPO) -> dict:
             "torch_default": torch.get_rng_state(),
         },
     }
+
+
+def _randomization_state(batch) -> dict:
+    """Domain randomisation in flight (issue 7): each drone's plant and disturbances, so that a
+    resumed run finishes its episodes on the plants they started with. Empty when off."""
+    if batch.randomizer is None:
+        return {}
+    params = {f.name: _tensor(getattr(batch.params, f.name)) for f in dataclasses.fields(batch.params)}
+    del params["gravity"]
+    r = {k: _tensor(v) for k, v in batch.randomizer.state_dict().items()}
+    return {"randomization": {"params": params, **r}}
+
+
+def _load_randomization_state(batch, env: dict, source: str) -> None:
+    if batch.randomizer is None:
+        return
+    if "randomization" not in env:
+        raise CheckpointError(f"{source}: the run randomises its plants but the checkpoint holds none of them")
+    saved = env["randomization"]
+    try:
+        params = {k: v.numpy().astype(batch.dtype) for k, v in saved["params"].items()}
+        batch.params = dataclasses.replace(batch.params, **params)
+        batch.randomizer.load_state_dict({k: v.numpy() for k, v in saved.items() if k != "params"})
+    except (KeyError, TypeError, ValueError) as e:
+        raise CheckpointError(f"{source}: randomised plants do not fit this environment ({e})") from e
 
 
 def load_ppo_state(ppo: PPO, state: dict, source: str = "checkpoint") -> None:
@@ -167,10 +210,12 @@ def load_ppo_state(ppo: PPO, state: dict, source: str = "checkpoint") -> None:
     ppo.ep_lengths = [int(x) for x in tr["ep_lengths"]]
     ppo.ep_success = [bool(x) for x in tr["ep_success"]]
     ppo._obs = tr["obs"].numpy().copy()
+    ppo.load_extra_state(tr.get("extra_state"))
     for name in _ENV_ARRAYS:
         setattr(batch, name, state["env"][name].numpy().astype(getattr(batch, name).dtype, copy=True))
     batch.target_radius = float(state["env"]["target_radius"])
     ppo.env._started = bool(state["env"]["started"])
+    _load_randomization_state(batch, state["env"], source)
     rng = state["rng"]
     kind = rng["env"].get("bit_generator")
     if kind not in _BIT_GENERATORS:
@@ -198,14 +243,24 @@ def checkpoint_dict(ppo: PPO, extra: dict | None = None) -> dict:
 
 
 def policy_checkpoint_dict(
-    model: torch.nn.Module, ppo_cfg: PPOConfig, env_cfg: EnvConfig, global_step: int = 0
+    model: torch.nn.Module,
+    ppo_cfg: PPOConfig,
+    env_cfg: EnvConfig,
+    global_step: int = 0,
+    *,
+    obs_rms=None,
+    updates: int = 0,
+    extra: dict | None = None,
 ) -> dict:
-    """A deployable policy file (policy.pt format, identity normaliser) for a network that PPO did
-    not train, e.g. a freshly built `RecurrentActorCritic` to test export and runtime on. It has
-    no optimizer, trainer or environment state, so it exports and flies but cannot be resumed."""
+    """A deployable policy file (policy.pt format) without optimizer, trainer or environment state:
+    it loads, exports and flies but cannot be resumed. For a network PPO did not train (e.g. a
+    freshly built `RecurrentActorCritic` to test export and runtime on; identity normaliser), or a
+    training snapshot (`save_snapshot`: the run's `obs_rms`, `updates` and `extra`)."""
     from quadpilot.core.normalize import RunningMeanStd
 
-    rms = RunningMeanStd((env_cfg.layout.dim,))
+    rms = obs_rms if obs_rms is not None else RunningMeanStd((env_cfg.layout.dim,))
+    if extra is None:
+        extra = {"note": "not trained by PPO: built to test export and runtime"}
     return plain(
         {
             "schema": SCHEMA,
@@ -217,11 +272,11 @@ def policy_checkpoint_dict(
             "optimizer": {},
             "obs_rms": rms.state_dict(),
             "global_step": int(global_step),
-            "updates": 0,
+            "updates": int(updates),
             "trainer": {},
             "env": {},
             "rng": {},
-            "extra": {"note": "not trained by PPO: built to test export and runtime"},
+            "extra": dict(extra),
         }
     )
 
@@ -320,7 +375,10 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
         raise CheckpointError(f"{path}: holds a {type(ckpt).__name__} without a 'schema' key; expected {expected}")
     if ckpt["schema"] != SCHEMA:
         raise CheckpointError(f"{path}: schema {ckpt['schema']!r}; this version of quadpilot reads {SCHEMA!r}")
-    missing = [k for k in REQUIRED if k not in ckpt]
+    algo = ckpt.get("algo", "ppo")
+    if algo not in ("ppo", "sac"):
+        raise CheckpointError(f"{path}: trained by {algo!r}; this version of quadpilot reads ppo and sac checkpoints")
+    missing = [k for k in (SAC_REQUIRED if algo == "sac" else REQUIRED) if k not in ckpt]
     if missing:
         raise CheckpointError(f"{path}: schema {SCHEMA!r} but missing {missing}; the file is damaged")
     return ckpt
@@ -353,6 +411,32 @@ def load_for_resume(directory: str | os.PathLike) -> tuple[dict, Path, str | Non
         return ckpt, d / PREVIOUS, warning
 
 
+def snapshot_path(directory: str | os.PathLike, global_step: int) -> Path:
+    """`directory/snapshots/policy-<global_step>.pt`."""
+    return Path(directory) / SNAPSHOTS / f"policy-{int(global_step)}.pt"
+
+
+def save_snapshot(directory: str | os.PathLike, ppo: PPO, extra: dict | None = None) -> Path:
+    """Write the policy `ppo` has now to `snapshot_path(directory, ppo.global_step)` atomically
+    (a small deployable file, see `policy_checkpoint_dict`); the same step overwrites the same file."""
+    path = snapshot_path(directory, ppo.global_step)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = policy_checkpoint_dict(
+        ppo.model, ppo.cfg, ppo.env_cfg, ppo.global_step, obs_rms=ppo.obs_rms, updates=ppo.updates, extra=extra or {}
+    )
+    return atomic_write(path, lambda f: torch.save(data, f))
+
+
+def list_snapshots(directory: str | os.PathLike) -> list[tuple[int, Path]]:
+    """The snapshots of a run directory as (training steps, path), oldest first."""
+    found = []
+    for path in (Path(directory) / SNAPSHOTS).glob("policy-*.pt"):
+        steps = path.stem.removeprefix("policy-")
+        if steps.isdigit():
+            found.append((int(steps), path))
+    return sorted(found)
+
+
 # --- the deployable policy ------------------------------------------------------------------
 
 
@@ -367,10 +451,14 @@ class TrainedPolicy:
         from quadpilot.core.normalize import RunningMeanStd
         from quadpilot.core.observation import get_layout
 
+        from .history import network_input_dim
         from .networks import build_actor_critic
 
         self.source = source
-        self.ppo_config = PPOConfig.from_json(ckpt["ppo_config"])
+        self.algo = ckpt.get("algo", "ppo")
+        # PPO: ppo_config; SAC (quadpilot.train.sac): sac_config, raw observations, actor tanh(mean)
+        self.ppo_config = PPOConfig.from_json(ckpt["ppo_config"]) if self.algo == "ppo" else None
+        self.normalize_obs = bool(self.ppo_config.normalize_obs) if self.ppo_config is not None else False
         self.env_config = EnvConfig.from_json(ckpt["env_config"])
         try:
             self.layout = get_layout(ckpt["obs_layout"]["name"])
@@ -382,45 +470,73 @@ class TrainedPolicy:
                 f"environment, which uses {self.env_config.layout.name!r}"
             )
         c = self.ppo_config
+        self.obs_history = int(c.obs_history) if c is not None else 1
+        in_dim = network_input_dim(self.layout.dim, c)  # the stacked input of a history policy
         try:
-            self.model = build_actor_critic(self.layout.dim, 4, c).eval()
+            self.model = build_actor_critic(in_dim, 4, c).eval() if c is not None else self._sac_actor(ckpt)
         except ValueError as e:
             raise CheckpointError(f"{source}: {e}") from None
         try:
             self.model.load_state_dict(ckpt["model"])
         except (RuntimeError, KeyError) as e:
             raise CheckpointError(f"{source}: weights do not fit the network its config describes ({e})") from e
-        self.obs_rms = RunningMeanStd((self.layout.dim,))
+        self.obs_rms = RunningMeanStd((in_dim,))
         self.obs_rms.load_state_dict(_rms_state(ckpt["obs_rms"]))
         self.global_step = int(ckpt["global_step"])
         self.extra = ckpt.get("extra", {})
 
+    def _sac_actor(self, ckpt: dict):
+        from .sac import SACConfig, build_actor
+
+        self.sac_config = SACConfig.from_json(ckpt["sac_config"])
+        return build_actor(self.layout.dim, self.sac_config).eval()
+
     @property
     def recurrent(self) -> bool:
+        """An LSTM policy (explicit h, c state; exports with h_in/c_in)."""
         return bool(getattr(self.model, "recurrent", False))
+
+    @property
+    def stateful(self) -> bool:
+        """Keeps state between steps (an LSTM or an observation history): use initial_state/step."""
+        return self.recurrent or self.obs_history > 1
+
+    def _actor(self):
+        from .recurrent_ppo import DeterministicActor
+
+        normalize = self.obs_rms.normalize if self.normalize_obs else lambda x: np.asarray(x, np.float32)
+        return DeterministicActor(self.model, normalize, self.layout.dim, self.obs_history)
+
+    def _check(self, raw_obs: np.ndarray) -> None:
+        if raw_obs.ndim != 2 or raw_obs.shape[1] != self.layout.dim:
+            raise ValueError(f"observations must have shape (N, {self.layout.dim}), got {raw_obs.shape}")
 
     def _input(self, raw_obs: np.ndarray) -> torch.Tensor:
         raw_obs = np.asarray(raw_obs, np.float32)
-        if raw_obs.ndim != 2 or raw_obs.shape[1] != self.layout.dim:
-            raise ValueError(f"observations must have shape (N, {self.layout.dim}), got {raw_obs.shape}")
-        x = self.obs_rms.normalize(raw_obs) if self.ppo_config.normalize_obs else raw_obs
+        self._check(raw_obs)
+        x = self.obs_rms.normalize(raw_obs) if self.normalize_obs else raw_obs
         return torch.from_numpy(np.ascontiguousarray(x, np.float32))
 
     @torch.inference_mode()
     def __call__(self, raw_obs: np.ndarray) -> np.ndarray:
-        if self.recurrent:
-            raise TypeError(f"{self.source} is a recurrent policy: use initial_state() and step()")
+        if self.stateful:
+            raise TypeError(f"{self.source} is a recurrent or history policy: use initial_state() and step()")
         return self.model.mean_action(self._input(raw_obs)).numpy()
 
-    def initial_state(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """Zero recurrent state for n drones (recurrent policies only)."""
-        return self.model.initial_state(n)
+    def initial_state(self, n: int):
+        """Start state for n drones (stateful policies): zero (h, c) for an LSTM, an empty history."""
+        if self.recurrent:
+            return self.model.initial_state(n)
+        return self._actor().initial_state(n)
 
     @torch.inference_mode()
-    def step(self, raw_obs: np.ndarray, state: tuple[torch.Tensor, torch.Tensor]):
-        """One step of a recurrent policy: (N, obs_dim) → actions (N, 4) in [−1, 1], new state."""
-        action, state = self.model.mean_action_step(self._input(raw_obs), state)
-        return action.numpy(), state
+    def step(self, raw_obs: np.ndarray, state):
+        """One step of a stateful policy: (N, obs_dim) → actions (N, 4) in [−1, 1], new state."""
+        if self.recurrent:
+            action, state = self.model.mean_action_step(self._input(raw_obs), state)
+            return action.numpy(), state
+        self._check(raw_obs)
+        return self._actor().step(np.asarray(raw_obs, np.float32), state)
 
 
 def load_policy(path: str | os.PathLike) -> TrainedPolicy:

@@ -7,6 +7,8 @@ Writes into the run directory (default runs/<task>-seed<S>):
   policy.pt           final deployable checkpoint (what quad-export reads)
   eval.json           deterministic evaluation of the final policy
   curves.png          episode return, length, success rate (and curriculum stage) against steps
+  snapshots/          with --snapshot-every N: policy-<steps>.pt, the deployable policy at 0 steps,
+                      every N updates and at the end (python -m quadpilot.train.montage draws them)
 
 Resume an interrupted or finished run with the same command plus --resume; a larger --total-steps
 extends a finished run.
@@ -94,12 +96,15 @@ PPO_OPTIONS = {
     "rollout_steps": ("T", 1),
     "minibatch_size": ("M", 1),
     "threads": ("N", 1),
+    "obs_history": ("K", 1),
+    "bptt_steps": ("L", 0),
 }
 # Options a resumed run may change; everything else must match the checkpoint.
 RESUME_MAY_CHANGE = ("total_steps", "threads")
-# --algo: our PPO, or a comparison baseline from another library trained on the same environment
-# with settings matched to the PPO preset (a module of this package with train_from_cli(args, argv)).
-ALGOS = {"ppo": None, "sb3": "sb3_baseline"}
+# --algo: our PPO, a comparison baseline from another library trained on the same environment
+# with settings matched to the PPO preset, or our SAC (issue 7); each other than ppo is a module of
+# this package with train_from_cli(args, argv).
+ALGOS = {"ppo": None, "sb3": "sb3_baseline", "sac": "sac"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -132,8 +137,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--algo",
         choices=tuple(ALGOS),
         default="ppo",
-        help="Who learns: ppo (ours) or sb3 (Stable-Baselines3 PPO with settings matched to the preset, "
-        "for comparison; needs the dev extra). Default: ppo.",
+        help="Who learns: ppo (ours), sb3 (Stable-Baselines3 PPO with settings matched to the preset, "
+        "for comparison; needs the dev extra) or sac (our Soft Actor-Critic, quadpilot.train.sac; "
+        "--rollout-steps is then vector steps per iteration, a metrics row, and --minibatch-size the "
+        "transitions per gradient step). Default: ppo.",
     )
     p.add_argument(
         "--preset",
@@ -143,6 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
         "Options given explicitly override it. Default: fast.",
     )
     p.add_argument("--vehicle", choices=sorted(VEHICLES), help="Airframe preset. Default: seed.")
+    _add_randomize_option(p)
+    _add_sensor_options(p)
     p.add_argument("--out", metavar="DIR", help="Run directory. Default: runs/<task>-seed<S>.")
     p.add_argument(
         "--resume",
@@ -174,7 +183,112 @@ def build_parser() -> argparse.ArgumentParser:
         help="Save checkpoint.pt every N updates (and always at the end and on Ctrl-C); a kill loses at most "
         "N updates. Default: 1 (a save costs milliseconds).",
     )
+    p.add_argument(
+        "--snapshot-every",
+        type=_int_at_least(0),
+        default=0,
+        metavar="N",
+        help="Keep the policy every N updates (and at 0 steps and at the end) as snapshots/policy-<steps>.pt, "
+        "a small deployable file like policy.pt (~50 kB for the default network), for "
+        "python -m quadpilot.train.montage. 0: none. Default: 0.",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help="--algo sac only: set a SAC hyper-parameter (a field of quadpilot.train.sac.SACConfig, e.g. "
+        "updates_per_step=4, critic_hidden=128,128, autotune_alpha=false); repeatable.",
+    )
     return p
+
+
+# --- domain randomisation (issue 7) --------------------------------------------------------
+
+
+def _add_randomize_option(p: argparse.ArgumentParser) -> None:
+    from quadpilot.core.randomization import PRESETS as RANDOMIZATIONS
+
+    p.add_argument(
+        "--randomize",
+        "--dr",
+        nargs="?",
+        const="default",
+        choices=sorted(RANDOMIZATIONS),
+        metavar="PRESET",
+        help="Randomise the plant per episode (domain randomisation, quadpilot.core.randomization): "
+        "default (mass and inertia ±20 %%, k_f and k_m ±10 %%, motor lag 0-30 ms, wind up to 1.5 m/s), "
+        "params (the same without wind) or pushes (default plus random pushes). The policy observes nothing "
+        "new and keeps the nominal hover command. Without PRESET: default. Default: off.",
+    )
+
+
+def _randomize_clash(args, env_config: dict) -> list[str]:
+    """A resumed run keeps its randomisation: --randomize on resume must name the stored one."""
+    if not getattr(args, "randomize", None):
+        return []
+    stored = (env_config.get("randomization") or {}).get("name")
+    return [] if stored == args.randomize else [f"--randomize {args.randomize} (checkpoint: {stored or 'off'})"]
+
+
+# --- network and sensors (issue 7: IMU noise and a recurrent policy) ----------------------
+
+
+def _add_sensor_options(p: argparse.ArgumentParser) -> None:
+    from quadpilot.core.sensor_noise import SENSOR_NOISE_PRESETS
+
+    p.add_argument(
+        "--arch",
+        choices=("mlp", "lstm"),
+        help="Network: mlp (two tanh layers each for actor and critic) or lstm (one LSTM layer each, trained "
+        "on sequences with the hidden state reset at episode starts; quadpilot.train.recurrent_ppo). Default: "
+        "the preset's, else mlp.",
+    )
+    p.add_argument(
+        "--sensor-noise",
+        nargs="?",
+        const="vehicle",
+        choices=("vehicle", *sorted(SENSOR_NOISE_PRESETS)),
+        metavar="PRESET",
+        help="Observe through noisy sensors (quadpilot.core.sensor_noise): gyro white noise and bias random walk, "
+        "and a cm-level position/velocity/attitude estimate; seed: ADIS16448 IMU, crazyflie: BMI088. Without "
+        "PRESET: the vehicle's own. Default: exact states.",
+    )
+    p.add_argument(
+        "--motor-tau",
+        type=float,
+        metavar="S",
+        help="First-order motor time constant in seconds (e.g. 0.03), replacing the vehicle preset's (0). "
+        "Default: the preset's.",
+    )
+
+
+def _sensor_env_kw(args) -> dict:
+    """make_config keywords for --sensor-noise and --motor-tau."""
+    import dataclasses as dc
+
+    from quadpilot.core.params import get_preset
+
+    kw: dict = {}
+    if args.sensor_noise:
+        kw["sensor_noise"] = (args.vehicle or "seed") if args.sensor_noise == "vehicle" else args.sensor_noise
+    if args.motor_tau is not None:
+        if not (math.isfinite(args.motor_tau) and args.motor_tau >= 0):
+            raise UsageError(f"--motor-tau must be a finite number of seconds ≥ 0, got {args.motor_tau}")
+        kw["vehicle"] = dc.replace(get_preset(args.vehicle or "seed"), motor_tau=args.motor_tau)
+    return kw
+
+
+def _sensor_clash(args, env_config: dict) -> list[str]:
+    """A resumed run keeps its sensors and motors: the flags, if given, must match the checkpoint."""
+    out = []
+    if args.sensor_noise:
+        want = (args.vehicle or "seed") if args.sensor_noise == "vehicle" else args.sensor_noise
+        stored = (env_config.get("sensor_noise") or {}).get("name")
+        if stored != want:
+            out.append(f"--sensor-noise {want} (checkpoint: {stored or 'off'})")
+    if args.motor_tau is not None and args.motor_tau != env_config["vehicle"].get("motor_tau"):
+        out.append(f"--motor-tau {args.motor_tau} (checkpoint: {env_config['vehicle'].get('motor_tau')})")
+    return out
 
 
 # --- progress -------------------------------------------------------------------------------
@@ -270,6 +384,8 @@ def _clean_stale_temps(out: Path) -> None:
     for f in out.glob(".*.tmp"):
         if any(f.name.startswith(f".{name}.") for name in RUN_FILES):
             f.unlink(missing_ok=True)
+    for f in (out / "snapshots").glob(".policy-*.tmp"):
+        f.unlink(missing_ok=True)
 
 
 def _command(argv: list[str]) -> str:
@@ -291,6 +407,9 @@ def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
     preset = args.preset or "fast"
     cfg = PPOConfig(**{**PRESETS[preset], **explicit})
     env_kw = {"vehicle": args.vehicle} if args.vehicle else {}
+    if getattr(args, "randomize", None):
+        env_kw["randomization"] = args.randomize  # a preset name; make_config scales it to the vehicle
+    env_kw.update(_sensor_env_kw(args))
     cur_cfg = CurriculumConfig() if args.task == "waypoint" else None
     if cur_cfg is not None:
         env_kw["target_radius"] = cur_cfg.radii[0]
@@ -307,6 +426,7 @@ def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
             "env": env_cfg.to_json(),
             "curriculum": cur_cfg.to_json() if cur_cfg else None,
             "checkpoint_every": args.checkpoint_every,
+            "snapshot_every": args.snapshot_every,
             "eval_episodes": args.eval_episodes,
             "command": _command(argv),
             "started": _now(),
@@ -334,6 +454,8 @@ def _resume(args, explicit: dict, out: Path, argv: list[str]):
         ckpt, used, warning = load_for_resume(out)
     except CheckpointError as e:
         raise UsageError(str(e)) from None
+    if ckpt.get("algo", "ppo") != "ppo":
+        raise UsageError(f"{out} holds a {ckpt['algo']} run; resume it with --algo {ckpt['algo']}")
     if warning:
         print(f"quad-train: warning: {warning}", file=sys.stderr)
     stored = PPOConfig.from_json(ckpt["ppo_config"])
@@ -350,6 +472,8 @@ def _resume(args, explicit: dict, out: Path, argv: list[str]):
         clashes.append(f"--preset {args.preset} (checkpoint: {extra.get('preset')})")
     if args.vehicle and args.vehicle != ckpt["env_config"]["vehicle"]["name"]:
         clashes.append(f"--vehicle {args.vehicle} (checkpoint: {ckpt['env_config']['vehicle']['name']})")
+    clashes += _randomize_clash(args, ckpt["env_config"])
+    clashes += _sensor_clash(args, ckpt["env_config"])
     if clashes:
         raise UsageError(
             f"a resumed run keeps its configuration; only --total-steps and --threads may change: {', '.join(clashes)}"
@@ -398,12 +522,14 @@ def _resume(args, explicit: dict, out: Path, argv: list[str]):
 
 
 def _train(args, argv: list[str]) -> int:
-    from .checkpoint import POLICY, save_checkpoint, save_for_resume
+    from .checkpoint import POLICY, save_checkpoint, save_for_resume, save_snapshot
     from .evaluate import evaluate
     from .ppo import PPOConfig
     from .runlog import MetricsLog, plot_curves, write_json
 
     explicit = {k: getattr(args, k) for k in PPO_OPTIONS if getattr(args, k) is not None}
+    if args.arch:
+        explicit["arch"] = args.arch
     seed = explicit.get("seed", PPOConfig.seed)
     out = Path(args.out or f"runs/{args.task}-seed{seed}")
     start = _resume if args.resume else _start_fresh
@@ -427,6 +553,8 @@ def _train(args, argv: list[str]) -> int:
 
     last: dict | None = None
     saved_at = ppo.updates if args.resume else -1
+    if args.snapshot_every and ppo.updates == 0:
+        save_snapshot(out, ppo, extra(None))  # the untrained policy: where a learning montage starts
     label = f"quad-train {args.task}"
     progress = _Progress(label, ppo.global_step, cfg.num_updates * cfg.batch_size)
     try:
@@ -456,6 +584,8 @@ def _train(args, argv: list[str]) -> int:
                         ppo.env.set_target_radius(cur.radius)
                 log.write(m)  # the row first: a kill before the save leaves a row the resume drops
                 last = m
+                if args.snapshot_every and (ppo.updates % args.snapshot_every == 0 or ppo.updates == cfg.num_updates):
+                    save_snapshot(out, ppo, extra(m))  # before the checkpoint: a resume redoes it, never skips it
                 if ppo.updates % args.checkpoint_every == 0 or ppo.updates == cfg.num_updates:
                     save_for_resume(out, ppo, extra(m))
                     saved_at = ppo.updates
@@ -529,6 +659,17 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser().parse_args(argv)
+        if args.algo == "sb3" and getattr(args, "randomize", None):
+            raise UsageError("--randomize trains our PPO only; the SB3 comparison runs on the nominal plant")
+        ours = ("--arch", args.arch, "--obs-history", args.obs_history, "--bptt-steps", args.bptt_steps)
+        ours += ("--sensor-noise", args.sensor_noise, "--motor-tau", args.motor_tau)
+        given = [ours[i] for i in range(0, len(ours), 2) if ours[i + 1] is not None]
+        if args.algo != "ppo" and given:
+            raise UsageError(f"{', '.join(given)}: options of our PPO (--algo ppo), not of --algo {args.algo}")
+        if args.set and args.algo != "sac":
+            raise UsageError("--set sets SAC hyper-parameters; it needs --algo sac")
+        if args.snapshot_every and args.algo != "ppo":
+            raise UsageError(f"--snapshot-every is for our PPO; --algo {args.algo} writes no snapshots")
         if ALGOS[args.algo] is not None:
             from importlib import import_module
 

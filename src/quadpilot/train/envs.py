@@ -30,7 +30,10 @@ from quadpilot.core.mission import (
 )
 from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT, ObsLayout, build_observation
 from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
+from quadpilot.core.randomization import RandomizationConfig, Randomizer
+from quadpilot.core.randomization import preset as randomization_preset
 from quadpilot.core.reward import RewardConfig, circle_errors, circle_reward, crashed, hover_reward
+from quadpilot.core.sensor_noise import SensorNoise, SensorNoiseState, get_sensor_noise
 from quadpilot.core.start import sample_ball, sample_start_states
 
 
@@ -74,8 +77,22 @@ class EnvConfig:
     """Float type of the simulation state: float32 (fast) or float64."""
     reward: RewardConfig = field(default_factory=RewardConfig)
     """Reward weights and termination limits."""
+    randomization: RandomizationConfig | None = None
+    """Per-episode domain randomisation of the plant: mass, inertia, k_f, k_m, motor lag, wind,
+    pushes (`core.randomization`; `gym.make` and `make_config` also take a preset name). None: the
+    nominal vehicle. The observation and the nominal hover command of the action map stay as they are."""
+    sensor_noise: str | SensorNoise | None = None
+    """Sensor noise (`core.sensor_noise`): a preset name ("seed": ADIS16448 IMU, "crazyflie": BMI088;
+    both with a cm-level state estimate) or a SensorNoise. The observation is then built from the
+    noisy estimate (position, velocity and attitude with estimator errors, body rates from the gyro
+    with bias and white noise); reward, crash and success use the true state. None: exact states."""
 
     def __post_init__(self) -> None:
+        if self.randomization is not None and not isinstance(self.randomization, RandomizationConfig):
+            raise TypeError(
+                f"randomization must be a RandomizationConfig or None, got {type(self.randomization).__name__}; "
+                "make_config and gym.make also take a preset name"
+            )
         if self.task not in TASKS:
             raise ValueError(f"unknown task {self.task!r}; expected one of {TASKS}")
         if self.dtype not in ("float32", "float64"):
@@ -84,10 +101,18 @@ class EnvConfig:
             raise ValueError("episode_steps and substeps must be ≥ 1 and dt > 0")
         if len(self.home) != 3:
             raise ValueError(f"home must be (x, y, z) in metres, got {self.home!r}")
+        if not (self.sensor_noise is None or isinstance(self.sensor_noise, SensorNoise)):
+            get_sensor_noise(self.sensor_noise)  # an unknown preset name fails here, naming the known ones
 
     @property
     def params(self) -> VehicleParams:
         return get_preset(self.vehicle) if isinstance(self.vehicle, str) else self.vehicle
+
+    @property
+    def noise(self) -> SensorNoise | None:
+        """The sensor noise model, None without noise."""
+        n = self.sensor_noise
+        return get_sensor_noise(n) if isinstance(n, str) else n
 
     @property
     def layout(self) -> ObsLayout:
@@ -101,6 +126,7 @@ class EnvConfig:
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
         d["vehicle"] = dataclasses.asdict(self.params)
+        d["sensor_noise"] = self.noise.to_json() if self.noise is not None else None
         return d
 
     @classmethod
@@ -109,6 +135,10 @@ class EnvConfig:
         d["vehicle"] = VehicleParams(**d["vehicle"]) if isinstance(d["vehicle"], dict) else d["vehicle"]
         d["reward"] = RewardConfig(**d.get("reward", {}))
         d["home"] = tuple(d["home"])
+        if isinstance(d.get("sensor_noise"), dict):
+            d["sensor_noise"] = SensorNoise.from_json(d["sensor_noise"])
+        if isinstance(d.get("randomization"), dict):
+            d["randomization"] = RandomizationConfig.from_json(d["randomization"])
         return cls(**d)
 
 
@@ -131,7 +161,13 @@ def make_config(task: str | None = None, **kwargs: Any) -> EnvConfig:
         },
         "circle": {"init_pos_radius": START_RADIUS["circle"]},
     }
-    return EnvConfig(**{**defaults.get(kwargs.get("task", "hover"), {}), **kwargs})
+    randomization = kwargs.pop("randomization", None)
+    if isinstance(randomization, dict):
+        randomization = RandomizationConfig.from_json(randomization)
+    cfg = EnvConfig(**{**defaults.get(kwargs.get("task", "hover"), {}), **kwargs})
+    if isinstance(randomization, str):  # a preset, scaled to the vehicle
+        randomization = randomization_preset(randomization, cfg.params)
+    return dataclasses.replace(cfg, randomization=randomization) if randomization is not None else cfg
 
 
 class QuadBatch:
@@ -158,6 +194,12 @@ class QuadBatch:
         self.err_sum = np.zeros(n)  # position error summed over the success window
         self.obs = np.zeros((n, cfg.layout.dim), np.float32)
         self._omega = cfg.circle_speed / cfg.circle_radius
+        self.noise_spec = cfg.noise
+        self.noise: SensorNoiseState | None = None  # built at the first reset, from its rng
+        # domain randomisation (issue 7): plant parameters and disturbances redrawn per reset
+        self.randomizer = (
+            Randomizer(cfg.randomization, self.nominal, n, cfg.dt, self.dtype) if cfg.randomization else None
+        )
 
     # --- targets -------------------------------------------------------------------------
     def _circle_target(self, idx) -> tuple[np.ndarray, np.ndarray]:
@@ -184,12 +226,21 @@ class QuadBatch:
             start, self.target_vel[idx] = self._circle_target(idx)
             self.target[idx] = start
         self.state[idx] = sample_start_states(rng, start, c.init_pos_radius, c.init_vel, c.init_tilt_deg, c.init_rate)
+        if self.randomizer is not None:  # a new ParamBatch (dynamics re-derives its constants)
+            self.params = self.randomizer.resample(self.params, idx, rng, c.episode_steps)
         self.rotor[idx] = self.u_hover
         self.steps[idx] = 0
         self.ep_return[idx] = 0.0
         self.err_sum[idx] = 0.0
+        if self.noise_spec is not None:  # the noise stream continues from a seed drawn here
+            seed = int(rng.integers(2**63))
+            if self.noise is None:
+                self.noise = SensorNoiseState(self.noise_spec, self.n, c.dt, np.random.default_rng(seed))
+            else:
+                self.noise.rng = np.random.default_rng(seed)
+            self.noise.reset(idx)
         self.obs[idx] = build_observation(
-            self.state[idx], self.target[idx], self.target_vel[idx] if c.task == "circle" else None
+            self.sensed(idx), self.target[idx], self.target_vel[idx] if c.task == "circle" else None
         )
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -197,12 +248,17 @@ class QuadBatch:
         Returns (obs, reward, terminated, truncated, pos_error_norm), obs written into self.obs."""
         c = self.cfg
         command = dynamics.action_to_command(np.asarray(action, dtype=self.dtype), self.u_hover)
-        self.state, self.rotor = dynamics.step(self.state, self.rotor, command, self.params, c.dt, c.substeps)
+        force, torque = self.randomizer.external(self.steps) if self.randomizer is not None else (None, None)
+        self.state, self.rotor = dynamics.step(
+            self.state, self.rotor, command, self.params, c.dt, c.substeps, force=force, torque=torque
+        )
         self.steps += 1
         circle = c.task == "circle"
         if circle:
             self.target, self.target_vel = self._circle_target(slice(None))
-        build_observation(self.state, self.target, self.target_vel if circle else None, out=self.obs)
+        if self.noise is not None:
+            self.noise.step()
+        build_observation(self.sensed(), self.target, self.target_vel if circle else None, out=self.obs)
         pos_err = self.state[:, 0:3] - self.target  # world frame, m
         crash = crashed(self.state, pos_err, c.reward)
         if circle:
@@ -215,6 +271,13 @@ class QuadBatch:
         self.err_sum += np.where(window, err, 0.0)
         truncated = (self.steps >= c.episode_steps) & ~crash
         return self.obs, reward, crash, truncated, err
+
+    def sensed(self, idx=None) -> np.ndarray:
+        """The 12-states the observation is built from: the true state (the array itself) without
+        sensor noise, else the noisy estimate of drones `idx` (None: all)."""
+        if self.noise is None:
+            return self.state if idx is None else self.state[idx]
+        return self.noise.estimate(self.state if idx is None else self.state[idx], idx)
 
     def success(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
         """(N,) bool: ended by the time limit with mean error over the window within tolerance."""

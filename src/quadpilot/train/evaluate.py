@@ -1,6 +1,8 @@
 """Deterministic evaluation with one success definition for every policy (ours, SB3's, the
 runtime's): a policy is any callable mapping raw observations (N, obs_dim) float32 to actions
-(N, 4) in [−1, 1].
+(N, 4) in [−1, 1], or a stateful one (an LSTM, an observation history: `stateful` or `recurrent`
+true) with `initial_state(n)` and `step(obs, state)` → (actions, state), started once per
+evaluation (every episode starts together at step 0).
 
 Success is `core.mission`'s definition, the one SITL judges by too. Hover/waypoint: the episode
 does not crash and the mean position error over its last 2 s is ≤ 0.05 m. Circle: radial RMS error
@@ -39,8 +41,14 @@ def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int 
     rad_sq = np.zeros(episodes)
     spd_abs = np.zeros(episodes)
     tracked = 0
+    stateful = bool(getattr(policy, "stateful", False) or getattr(policy, "recurrent", False))
+    state = policy.initial_state(episodes) if stateful else None
     for t in range(T):
-        action = np.asarray(policy(batch.obs.copy()), dtype=np.float32)
+        if stateful:
+            action, state = policy.step(batch.obs.copy(), state)
+            action = np.asarray(action, dtype=np.float32)
+        else:
+            action = np.asarray(policy(batch.obs.copy()), dtype=np.float32)
         _, reward, term, _, err = batch.step(action)
         ep_return += np.where(alive, reward, 0.0)
         newly = alive & term

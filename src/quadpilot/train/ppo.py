@@ -26,9 +26,11 @@ import torch
 
 from quadpilot.core.normalize import RunningMeanStd
 
+from . import recurrent_ppo
 from .envs import EnvConfig, QuadVectorEnv
 from .gae import compute_gae
-from .networks import ActorCritic, build_actor_critic
+from .history import HistoryVectorEnv, network_input_dim
+from .networks import ActorCritic, RecurrentActorCritic, build_actor_critic
 
 
 @dataclass(frozen=True)
@@ -67,10 +69,16 @@ class PPOConfig:
     """Stop the epochs of an update early once approx_kl exceeds this (None: never)."""
     arch: str = "mlp"
     """Network: mlp (feed-forward actor and critic), or lstm (`RecurrentActorCritic`, one LSTM layer
-    of lstm_hidden units and a linear head each; it exports and flies, its PPO training is not
-    written yet)."""
+    of lstm_hidden units and a linear head each, trained on sequences: `recurrent_ppo`)."""
     lstm_hidden: int = 64
     """LSTM width when arch is lstm."""
+    bptt_steps: int = 0
+    """arch lstm: truncated backprop through time, the length L of the sequences each drone's
+    rollout is cut into (each replayed from the LSTM state stored at collection); minibatches hold
+    minibatch_size // L whole sequences. 0: the whole rollout (L = rollout_steps)."""
+    obs_history: int = 1
+    """arch mlp: the network sees the last k observations and the k actions before them, stacked
+    (`history`); 1: the current observation only. Evaluated in-process; not exportable."""
     actor_hidden: tuple[int, ...] = (64, 64)
     """Actor hidden layer widths."""
     critic_hidden: tuple[int, ...] = (64, 64)
@@ -105,6 +113,11 @@ class PPOConfig:
     @property
     def num_minibatches(self) -> int:
         return max(1, self.batch_size // self.minibatch_size)
+
+    @property
+    def seq_len(self) -> int:
+        """Steps per training sequence of a recurrent policy (see bptt_steps)."""
+        return self.bptt_steps or self.rollout_steps
 
     @property
     def num_updates(self) -> int:
@@ -166,15 +179,27 @@ class PPO:
     def __init__(self, cfg: PPOConfig, env_cfg: EnvConfig) -> None:
         self.cfg, self.env_cfg = cfg, env_cfg
         torch.set_num_threads(cfg.threads)
+        self.recurrent = cfg.arch == "lstm"
+        if cfg.obs_history < 1 or (cfg.obs_history > 1 and cfg.arch != "mlp"):
+            raise ValueError(
+                f"obs_history must be ≥ 1, and > 1 only with arch='mlp'; got {cfg.obs_history} ({cfg.arch})"
+            )
+        if self.recurrent and (cfg.bptt_steps < 0 or cfg.rollout_steps % cfg.seq_len):
+            raise ValueError(
+                f"bptt_steps {cfg.bptt_steps} must divide rollout_steps {cfg.rollout_steps} (0: all of it)"
+            )
+        self.seq_len = cfg.seq_len
         self.env = QuadVectorEnv(cfg.num_envs, config=env_cfg)
-        obs_dim = env_cfg.layout.dim
+        if cfg.obs_history > 1:
+            self.env = HistoryVectorEnv(self.env, cfg.obs_history)
+        self.obs_dim = obs_dim = network_input_dim(env_cfg.layout.dim, cfg)
         self.torch_gen = torch.Generator().manual_seed(cfg.seed)
         torch.manual_seed(cfg.seed)  # parameter initialisation draws from the default generator
-        if cfg.arch != "mlp":
-            raise ValueError(f"PPO trains arch='mlp' only so far; arch={cfg.arch!r} has no recurrent PPO update yet")
-        self.model: ActorCritic = build_actor_critic(obs_dim, 4, cfg)
+        self.model: ActorCritic | RecurrentActorCritic = build_actor_critic(obs_dim, 4, cfg)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, eps=1e-5)
         self.obs_rms = RunningMeanStd((obs_dim,))
+        if self.recurrent:  # LSTM states carried from step to step and rollout to rollout
+            self.rollout_state = recurrent_ppo.initial_rollout_state(self.model, cfg.num_envs)
         self.global_step = 0
         self.updates = 0
         self._nonfinite_streak = 0
@@ -187,6 +212,52 @@ class PPO:
     def reseed(self, seed: int) -> None:
         raw, _ = self.env.reset(seed=seed)
         self._obs = raw
+        if self.recurrent:
+            self.rollout_state = recurrent_ppo.initial_rollout_state(self.model, self.cfg.num_envs)
+
+    def _record_episodes(self, infos: dict) -> None:
+        """Returns, lengths and successes of the episodes that ended in this step."""
+        ended = infos["_final_obs"]
+        ep = infos["episode"]
+        self.ep_returns.extend(ep["r"][ended].tolist())
+        self.ep_lengths.extend(ep["l"][ended].tolist())
+        self.ep_success.extend(ep["success"][ended].tolist())
+
+    def extra_state(self) -> dict:
+        """Trainer state beyond the MLP's, as arrays and plain data for a checkpoint: the LSTM
+        states in flight, the observation history, the sensor-noise processes."""
+        out: dict = {}
+        if self.recurrent:
+            out["rollout_state"] = {k: v.clone() for k, v in self.rollout_state.items() if k != "start"}
+            out["rollout_state"]["start"] = self.rollout_state["start"].copy()
+        if isinstance(self.env, HistoryVectorEnv):
+            out["history"] = self.env.state_dict()
+        noise = self.env.batch.noise
+        if noise is not None:
+            out["noise"] = noise.state_dict()
+        return out
+
+    def load_extra_state(self, d: dict | None) -> None:
+        """Put back what `extra_state` saved (a checkpoint without it leaves things as they are)."""
+        d = d or {}
+        if self.recurrent and "rollout_state" in d:
+            rs = d["rollout_state"]
+            self.rollout_state = {
+                k: torch.as_tensor(np.asarray(rs[k]), dtype=torch.float32).clone() for k in recurrent_ppo.STATE_KEYS
+            }
+            self.rollout_state["start"] = np.asarray(rs["start"], bool).copy()
+        if "history" in d and isinstance(self.env, HistoryVectorEnv):
+            self.env.load_state_dict({k: np.asarray(v) for k, v in d["history"].items()})
+        if "noise" in d:
+            from quadpilot.core.sensor_noise import SensorNoiseState
+
+            batch = self.env.batch
+            if batch.noise is None:
+                batch.noise = SensorNoiseState(batch.noise_spec, batch.n, self.env_cfg.dt, np.random.default_rng(0))
+            nd = d["noise"]
+            batch.noise.load_state_dict(
+                {"slow": np.asarray(nd["slow"]), "white": np.asarray(nd["white"]), "rng": nd["rng"]}
+            )
 
     def _norm(self, raw: np.ndarray) -> np.ndarray:
         return self.obs_rms.normalize(raw) if self.cfg.normalize_obs else raw.astype(np.float32)
@@ -194,9 +265,12 @@ class PPO:
     # --- rollout -------------------------------------------------------------------------
     @torch.inference_mode()
     def collect(self) -> dict[str, torch.Tensor]:
-        """One rollout of T steps over N drones with the current (old) policy."""
+        """One rollout of T steps over N drones with the current (old) policy. A recurrent policy
+        returns sequences instead of flat transitions (`recurrent_ppo.collect`)."""
+        if self.recurrent:
+            return recurrent_ppo.collect(self)
         cfg, n, T = self.cfg, self.cfg.num_envs, self.cfg.rollout_steps
-        obs_dim = self.env_cfg.layout.dim
+        obs_dim = self.obs_dim
         obs_buf = np.zeros((T, n, obs_dim), np.float32)
         act_buf = torch.zeros((T, n, 4))
         logp_buf = torch.zeros((T, n))
@@ -222,11 +296,7 @@ class PPO:
             env_s += time.perf_counter() - te
             rew_buf[t], term_buf[t], trunc_buf[t] = reward, term, trunc
             if "_final_obs" in infos:
-                ended = infos["_final_obs"]
-                ep = infos["episode"]
-                self.ep_returns.extend(ep["r"][ended].tolist())
-                self.ep_lengths.extend(ep["l"][ended].tolist())
-                self.ep_success.extend(ep["success"][ended].tolist())
+                self._record_episodes(infos)
                 tr = np.flatnonzero(trunc)
                 if tr.size:  # bootstrap from the final observation of time-limit truncations
                     final = self._norm(infos["final_obs"][tr])
@@ -262,11 +332,17 @@ class PPO:
             frac = max(0.0, 1.0 - self.updates / cfg.num_updates)
             for g in self.opt.param_groups:
                 g["lr"] = cfg.lr * frac
-        finite = torch.stack([torch.isfinite(v).reshape(v.shape[0], -1).all(1) for v in batch.values()]).all(0)
-        skipped = int((~finite).sum())
+        if self.recurrent:  # the units are whole sequences (recurrent_ppo)
+            finite = recurrent_ppo.finite_sequences(batch)
+            skipped = int((~finite).sum()) * self.seq_len
+            per_minibatch = max(1, cfg.minibatch_size // self.seq_len)
+        else:  # the units are transitions
+            finite = torch.stack([torch.isfinite(v).reshape(v.shape[0], -1).all(1) for v in batch.values()]).all(0)
+            skipped = int((~finite).sum())
+            per_minibatch = cfg.minibatch_size
         idx_all = torch.nonzero(finite).squeeze(1)
         size = idx_all.numel()
-        mb = min(cfg.minibatch_size, size) if size else 0
+        mb = min(per_minibatch, size) if size else 0
         stats: dict[str, list[float]] = {k: [] for k in ("policy_loss", "value_loss", "entropy", "approx_kl")}
         stats.update(clip_fraction=[], grad_norm=[])
         skipped_steps = 0
@@ -275,17 +351,21 @@ class PPO:
             perm = idx_all[torch.randperm(size, generator=self.torch_gen)]
             for start in range(0, size - mb + 1, mb) if mb else []:
                 i = perm[start : start + mb]
-                obs, act, old_logp = batch["obs"][i], batch["act"][i], batch["logp"][i]
-                adv, ret, old_v = batch["adv"][i], batch["ret"][i], batch["val"][i]
+                if self.recurrent:  # replay whole sequences from their stored LSTM states
+                    dist, v, data = recurrent_ppo.forward(self.model, batch, i)
+                else:
+                    data = {k: batch[k][i] for k in ("act", "logp", "adv", "ret", "val")}
+                    obs = batch["obs"][i]
+                    dist, v = self.model.distribution(obs), self.model.value(obs)
+                act, old_logp = data["act"], data["logp"]
+                adv, ret, old_v = data["adv"], data["ret"], data["val"]
                 if cfg.normalize_adv:
                     adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-                dist = self.model.distribution(obs)
                 logp = dist.log_prob(act).sum(-1)
                 log_ratio = logp - old_logp
                 ratio = log_ratio.exp()
                 # L^CLIP as a loss: max of the negated unclipped and clipped objectives
                 pg_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - cfg.clip_eps, 1 + cfg.clip_eps)).mean()
-                v = self.model.value(obs)
                 if cfg.clip_value:
                     v_clip = old_v + (v - old_v).clamp(-cfg.clip_eps, cfg.clip_eps)
                     v_loss = 0.5 * torch.max((v - ret) ** 2, (v_clip - ret) ** 2).mean()
@@ -324,7 +404,10 @@ class PPO:
                 )
         else:
             self._nonfinite_streak = 0
-        y, v = batch["ret"][finite], batch["val"][finite]
+        if self.recurrent:
+            y, v = batch["ret"][:, finite].reshape(-1), batch["val"][:, finite].reshape(-1)
+        else:
+            y, v = batch["ret"][finite], batch["val"][finite]
         var_y = y.var().item() if y.numel() > 1 else float("nan")
         out = {k: float(np.mean(s)) if s else float("nan") for k, s in stats.items()}
         out["explained_variance"] = float("nan") if not var_y > 0 else 1.0 - (y - v).var().item() / var_y
@@ -361,7 +444,9 @@ class PPO:
         del self.ep_returns[:-keep], self.ep_lengths[:-keep], self.ep_success[:-keep]
         return metrics
 
-    @torch.inference_mode()
-    def act_deterministic(self, raw_obs: np.ndarray) -> np.ndarray:
-        """Mean action for raw observations (N, obs_dim): what evaluation and export use."""
-        return self.model.mean_action(torch.from_numpy(self._norm(raw_obs))).numpy()
+    @property
+    def act_deterministic(self) -> recurrent_ppo.DeterministicActor:
+        """The deterministic policy on raw observations (N, obs_dim): what evaluation and export
+        use. For an MLP a callable, `ppo.act_deterministic(obs)` → mean actions (N, 4); for an LSTM
+        or an observation history, `initial_state(n)` and `step(obs, state)` (`evaluate` takes both)."""
+        return recurrent_ppo.DeterministicActor(self.model, self._norm, self.env_cfg.layout.dim, self.cfg.obs_history)

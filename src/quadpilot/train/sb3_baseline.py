@@ -80,8 +80,10 @@ FIELD_MAP: dict[str, tuple[str | None, str]] = {
         "epoch whose last minibatch exceeded target_kl. Passed as target_kl/1.5 so the thresholds agree "
         "(None in every preset)",
     ),
-    "arch": ("policy", "mlp → MlpPolicy (ActorCriticPolicy); lstm has no PPO training in ours yet"),
+    "arch": ("policy", "mlp → MlpPolicy (ActorCriticPolicy); the comparison matches the MLP only"),
     "lstm_hidden": (None, "unused by an MLP policy"),
+    "bptt_steps": (None, "unused by an MLP policy"),
+    "obs_history": (None, "1 (the plain observation) only: SB3 would need a frame-stacking wrapper"),
     "actor_hidden": ("policy_kwargs.net_arch.pi", "separate actor and critic networks in both"),
     "critic_hidden": ("policy_kwargs.net_arch.vf", ""),
     "activation": ("policy_kwargs.activation_fn", ""),
@@ -175,8 +177,10 @@ class MatchedLR:
 
 def sb3_settings(cfg: PPOConfig) -> dict[str, Any]:
     """The SB3 configuration matched to `cfg`, JSON-able (saved in config.json as "sb3")."""
-    if cfg.arch != "mlp":
-        raise ValueError(f"the SB3 baseline matches arch='mlp' only, got {cfg.arch!r}")
+    if cfg.arch != "mlp" or cfg.obs_history != 1:
+        raise ValueError(
+            f"the SB3 baseline matches arch='mlp' with obs_history=1 only, got {cfg.arch!r}, {cfg.obs_history}"
+        )
     if cfg.activation not in ACTIVATIONS:
         raise ValueError(f"unknown activation {cfg.activation!r}; expected one of {sorted(ACTIVATIONS)}")
     return {

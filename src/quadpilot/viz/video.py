@@ -11,10 +11,15 @@ fading trail of the last `trail_s` seconds over the faint whole path; the target
 dashed path with a moving dot). When the true arm is under 4 % of the view's width the vehicle is
 drawn with arms ×3 (`geometry.display_arm`), and the frame says so. Right, the position error and
 the motor commands over the whole flight, with a cursor at the current time.
+
+The drawing of one flight (`_Scene`) also makes each panel of `montage.render_montage`. A .gif is
+written with one palette for all its frames and each frame's unchanged pixels stored as
+transparent (`_gif_writer_class`): 3–7× smaller than matplotlib's PillowWriter, same look.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -40,19 +45,32 @@ ROTOR_RADIUS = 0.5
 """Drawn rotor disc radius as a fraction of the (drawn) arm: a 5-inch propeller on the seed
 vehicle's 0.105 m arm is 0.6 of it; a little smaller keeps the discs apart."""
 MOTOR_COLOURS = ("tab:red", "tab:blue", "tab:purple", "tab:cyan")
+MIN_VIEW_HALF = 0.25
+"""m, the 3-D view is at least this far on each side of the flight's centre."""
 TRAIL_SEGMENTS = 60
 
 
 def frame_indices(trace: FlightTrace, fps: float, speed: float = 1.0) -> np.ndarray:
     """Index into the trace of each video frame: frame k shows simulated time k·speed/fps since the
     start, using the latest sample at or before it. floor(duration·fps/speed) + 1 frames."""
+    return indices_at(trace, frame_times(trace.duration, fps, speed))
+
+
+def frame_times(duration: float, fps: float, speed: float = 1.0) -> np.ndarray:
+    """Simulated time (s since the start) shown by each frame of a video of `duration` simulated
+    seconds: k·speed/fps for k = 0 … floor(duration·fps/speed)."""
     if not (fps > 0 and math.isfinite(fps)):
         raise ValueError(f"fps must be a positive number, got {fps!r}")
     if not (speed > 0 and math.isfinite(speed)):
         raise ValueError(f"speed must be a positive number, got {speed!r}")
-    n_frames = math.floor(trace.duration * fps / speed + 1e-9) + 1
-    tau = np.arange(n_frames) * (speed / fps)
-    return np.clip(np.searchsorted(trace.time, tau + 1e-9, side="right") - 1, 0, trace.n - 1)
+    n_frames = math.floor(duration * fps / speed + 1e-9) + 1
+    return np.arange(n_frames) * (speed / fps)
+
+
+def indices_at(trace: FlightTrace, tau: np.ndarray) -> np.ndarray:
+    """Index of the latest sample of `trace` at or before each time `tau` (s since its start);
+    times past its end give its last sample (a flight that ended early holds its last picture)."""
+    return np.clip(np.searchsorted(trace.time, np.asarray(tau) + 1e-9, side="right") - 1, 0, trace.n - 1)
 
 
 def check_video_output(out: str | Path) -> None:
@@ -88,21 +106,9 @@ def render_flight_video(
     if not isinstance(trace, FlightTrace):
         raise ValueError(f"render_flight_video: expected one FlightTrace, got {type(trace).__name__}")
     out = Path(out)
-    suffix = out.suffix.lower()
-    check_video_output(out)
-    if isinstance(fps, bool) or not isinstance(fps, int) or fps < 1:
-        raise ValueError(f"render_flight_video: fps must be a positive integer, got {fps!r}")
-    if not (len(size_px) == 2 and all(isinstance(v, int) and v >= 16 for v in size_px)):
-        raise ValueError(f"render_flight_video: size_px must be two integers ≥ 16 (width, height), got {size_px!r}")
-    if suffix == ".mp4" and (size_px[0] % 2 or size_px[1] % 2):
-        raise ValueError(f"render_flight_video: an .mp4 needs an even width and height, got {size_px!r}")
-    if not (trail_s >= 0 and math.isfinite(trail_s)):
-        raise ValueError(f"render_flight_video: trail_s must be ≥ 0 seconds, got {trail_s!r}")
-    if exaggerate is not None and not (exaggerate > 0 and math.isfinite(exaggerate)):
-        raise ValueError(f"render_flight_video: exaggerate must be a positive number or None, got {exaggerate!r}")
+    writer = _check_options("render_flight_video", out, fps, size_px, trail_s, exaggerate)
     arm = arm_length_of(arm_length)
     frames = frame_indices(trace, fps, speed)
-    writer = _writer(suffix, fps)
 
     width, height = size_px
     fig = new_figure(width / dpi, height / dpi, dpi)
@@ -115,6 +121,24 @@ def render_flight_video(
     return out
 
 
+def _check_options(who: str, out: Path, fps, size_px, trail_s, exaggerate):
+    """Check the options every animation takes; returns the matplotlib writer for `out`."""
+    suffix = out.suffix.lower()
+    if suffix not in VIDEO_FORMATS:
+        raise ValueError(f"{who}: {out} must end in .gif or .mp4")
+    if isinstance(fps, bool) or not isinstance(fps, int) or fps < 1:
+        raise ValueError(f"{who}: fps must be a positive integer, got {fps!r}")
+    if not (len(size_px) == 2 and all(isinstance(v, int) and v >= 16 for v in size_px)):
+        raise ValueError(f"{who}: size_px must be two integers ≥ 16 (width, height), got {size_px!r}")
+    if suffix == ".mp4" and (size_px[0] % 2 or size_px[1] % 2):
+        raise ValueError(f"{who}: an .mp4 needs an even width and height, got {size_px!r}")
+    if not (trail_s >= 0 and math.isfinite(trail_s)):
+        raise ValueError(f"{who}: trail_s must be ≥ 0 seconds, got {trail_s!r}")
+    if exaggerate is not None and not (exaggerate > 0 and math.isfinite(exaggerate)):
+        raise ValueError(f"{who}: exaggerate must be a positive number or None, got {exaggerate!r}")
+    return _writer(suffix, fps)
+
+
 def _writer(suffix: str, fps: int):
     try:
         from matplotlib import animation
@@ -125,7 +149,7 @@ def _writer(suffix: str, fps: int):
             import PIL  # noqa: F401  (matplotlib depends on pillow; say so if it is gone anyway)
         except ImportError as e:
             raise VizUnavailable("a .gif needs pillow: pip install pillow") from e
-        return animation.PillowWriter(fps=fps)
+        return _gif_writer_class()(fps=fps)
     if not animation.FFMpegWriter.isAvailable():
         raise VizUnavailable(
             "an .mp4 needs ffmpeg, which is not on PATH: install ffmpeg (e.g. apt-get install ffmpeg), "
@@ -135,10 +159,111 @@ def _writer(suffix: str, fps: int):
     return animation.FFMpegWriter(fps=fps, extra_args=["-pix_fmt", "yuv420p"])
 
 
-class _Scene:
-    """The figure's artists, created once and moved per frame."""
+GIF_COLOURS = 253
+"""Colours of a GIF's shared palette besides pure white and black (one index stays free for
+transparency: 256 in all)."""
+NEAR_WHITE_BLACK = 8
+"""Palette colours this close (per channel) to white or black are replaced by exact white or black."""
 
-    def __init__(self, fig, trace: FlightTrace, arm: float, trail_s: float, exaggerate: float | None) -> None:
+
+@functools.cache
+def _gif_writer_class():
+    """matplotlib's PillowWriter, writing a smaller GIF: one palette for every frame (median cut
+    over a sample of frames, plus exact white and black so the background stays white), no
+    dithering, and Pillow's `optimize`, which then stores each frame's unchanged pixels as
+    transparent. Plots change little between frames, so this is 3–7× smaller than PillowWriter's
+    per-frame palettes, at the same look."""
+    from matplotlib import animation
+    from PIL import Image
+
+    class SharedPaletteGifWriter(animation.PillowWriter):
+        def finish(self) -> None:
+            frames = [f.convert("RGB") for f in self._frames]
+            sample = frames[:: max(1, len(frames) // 16)]
+            width, height = sample[0].size
+            tile = Image.new("RGB", (width, height * len(sample)))
+            for i, f in enumerate(sample):
+                tile.paste(f, (0, i * height))
+            quantized = tile.quantize(GIF_COLOURS, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+            used = len(quantized.getcolors(256) or [])
+            found = np.asarray(quantized.getpalette()[: 3 * used], dtype=int).reshape(-1, 3)
+            # Pillow maps a pixel to a palette colour through a coarse cache, so a near-white
+            # entry can win over white: drop those and put white and black first.
+            near = (found.min(axis=1) >= 255 - NEAR_WHITE_BLACK) | (found.max(axis=1) <= NEAR_WHITE_BLACK)
+            colours = [255, 255, 255, 0, 0, 0, *found[~near].ravel().tolist()]
+            palette = Image.new("P", (1, 1))
+            palette.putpalette(colours)
+            indexed = [f.quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
+            indexed[0].save(
+                self.outfile,
+                save_all=True,
+                append_images=indexed[1:],
+                duration=int(1000 / self.fps),
+                loop=0,
+                optimize=True,
+            )
+
+    return SharedPaletteGifWriter
+
+
+# Where a scene's parts go. Axes boxes are fractions of the scene's rectangle (x, y, width,
+# height); texts are (x, y, ha, va) in the 3-D view's axes fractions; ticks: per 3-D axis at most.
+# "side": one flight filling the figure, 3-D view left, error and motor panels right.
+# "below": one panel of a montage: the 3-D view, the error strip under it, no motor panel.
+LAYOUTS = {
+    "side": {
+        "view": (0.01, 0.02, 0.62, 0.96),
+        "error": (0.74, 0.58, 0.245, 0.36),
+        "motors": (0.74, 0.12, 0.245, 0.36),
+        "clock": (0.02, 0.94, "left", "baseline"),
+        "status": (0.02, 0.88, "left", "baseline"),
+        "note": (0.98, 0.94, "right", "top"),
+        "ticks": 4,
+        "zoom": 1.12,
+    },
+    "below": {
+        "view": (0.0, 0.25, 1.0, 0.75),
+        "error": (0.2, 0.08, 0.74, 0.15),
+        "motors": None,
+        "clock": (0.03, 0.99, "left", "top"),
+        "status": (0.03, 0.91, "left", "top"),
+        "note": (0.97, 0.91, "right", "top"),
+        "ticks": 3,
+        "zoom": 1.08,
+    },
+}
+
+
+def _inside(rect: tuple[float, float, float, float], box: tuple[float, float, float, float]):
+    """`box` given in fractions of `rect`, in figure fractions."""
+    x, y, w, h = rect
+    bx, by, bw, bh = box
+    return (x + bx * w, y + by * h, bw * w, bh * h)
+
+
+class _Scene:
+    """The artists of one flight's drawing, created once and moved per frame.
+
+    rect: the part of the figure it owns (figure fractions); layout: a key of `LAYOUTS`.
+    view_points: (M, 3) points the 3-D view must contain (default: the flight and its target), so
+    several scenes can share one view. error_ylim, t_end: shared error-axis and time-axis limits.
+    show_label: write `trace.label` in the view's corner."""
+
+    def __init__(
+        self,
+        fig,
+        trace: FlightTrace,
+        arm: float,
+        trail_s: float,
+        exaggerate: float | None,
+        *,
+        rect: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0),
+        layout: str = "side",
+        view_points: np.ndarray | None = None,
+        error_ylim: tuple[float, float] | None = None,
+        t_end: float | None = None,
+        show_label: bool = True,
+    ) -> None:
         from matplotlib.ticker import MaxNLocator, NullFormatter
         from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
@@ -147,18 +272,19 @@ class _Scene:
         pos = trace.position
         step = float(np.median(np.diff(time))) if trace.n > 1 else 0.01
         self.trail_steps = max(1, round(trail_s / step)) if step > 0 else 1
+        boxes = LAYOUTS[layout]
 
-        ax = fig.add_axes((0.01, 0.02, 0.62, 0.96), projection="3d")
+        ax = fig.add_axes(_inside(rect, boxes["view"]), projection="3d")
         self.ax = ax
-        pts = np.concatenate([pos, trace.target_path])
-        half = _cube_limits(ax, pts, min_half=0.25)
+        pts = np.concatenate([pos, trace.target_path]) if view_points is None else np.asarray(view_points)
+        half = _cube_limits(ax, pts, min_half=MIN_VIEW_HALF)
         if exaggerate is None:
             self.arm, factor = display_arm(arm, 2 * half)
         else:
             self.arm, factor = arm * exaggerate, exaggerate
         ax.view_init(elev=22, azim=-60)
         for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-            axis.set_major_locator(MaxNLocator(4))
+            axis.set_major_locator(MaxNLocator(boxes["ticks"]))
         ax.tick_params(labelsize=6, pad=-2)
         ax.set_xlabel("x [m]", fontsize=6, labelpad=-8)
         ax.set_ylabel("y [m]", fontsize=6, labelpad=-8)
@@ -188,40 +314,57 @@ class _Scene:
             alpha=0.55,
         )
         ax.add_collection3d(self.discs)
-        _cube_limits(ax, pts, min_half=0.25, pad=1.5 * self.arm, zoom=1.12)  # pad: room for the drawn vehicle
+        # pad: room for the drawn vehicle
+        _cube_limits(ax, pts, min_half=MIN_VIEW_HALF, pad=1.5 * self.arm, zoom=boxes["zoom"])
         self.floor = ax.get_zlim()[0]
-        self.clock = ax.text2D(0.02, 0.94, "", transform=ax.transAxes, fontsize=7, family="monospace")
-        self.status = ax.text2D(0.02, 0.88, "", transform=ax.transAxes, fontsize=7, weight="bold")
-        notes = [trace.label] if trace.label else []
+
+        def text(where: str, **kw):
+            x, y, ha, va = boxes[where]
+            return ax.text2D(x, y, kw.pop("s", ""), transform=ax.transAxes, ha=ha, va=va, **kw)
+
+        self.clock = text("clock", fontsize=7, family="monospace")
+        self.status = text("status", fontsize=7, weight="bold")
+        notes = [trace.label] if trace.label and show_label else []
         if factor != 1.0:
             notes.append(f"vehicle drawn ×{factor:g}")
-        ax.text2D(0.98, 0.94, "\n".join(notes), transform=ax.transAxes, fontsize=6, color="0.3", ha="right", va="top")
+        text("note", s="\n".join(notes), fontsize=6, color="0.3")
 
-        end = trace.duration if trace.duration > 0 else 1.0
-        ax_err = fig.add_axes((0.74, 0.58, 0.245, 0.36))
-        ax_cmd = fig.add_axes((0.74, 0.12, 0.245, 0.36), sharex=ax_err)
+        end = t_end if t_end is not None else trace.duration
+        end = end if end > 0 else 1.0
+        ax_err = fig.add_axes(_inside(rect, boxes["error"]))
         ax_err.semilogy(time, np.maximum(trace.error, ERROR_FLOOR_M), color="tab:blue", lw=0.9)
-        for i, c in enumerate(MOTOR_COLOURS):
-            ax_cmd.plot(time, trace.commands[:, i], color=c, lw=0.7)
-        ax_cmd.set_ylim(-0.03, 1.03)
+        if error_ylim is not None:
+            ax_err.set_ylim(*error_ylim)
         ax_err.set_xlim(0.0, end)
-        ax_err.set_title("error [m]", fontsize=7, pad=2)
-        ax_cmd.set_title("motors ω/ω_max", fontsize=7, pad=2)
-        ax_cmd.set_xlabel("time [s]", fontsize=6, labelpad=1)
-        for a in (ax_err, ax_cmd):
+        panels = [ax_err]
+        if boxes["motors"] is not None:
+            ax_cmd = fig.add_axes(_inside(rect, boxes["motors"]), sharex=ax_err)
+            for i, c in enumerate(MOTOR_COLOURS):
+                ax_cmd.plot(time, trace.commands[:, i], color=c, lw=0.7)
+            ax_cmd.set_ylim(-0.03, 1.03)
+            ax_cmd.set_title("motors ω/ω_max", fontsize=7, pad=2)
+            ax_cmd.set_xlabel("time [s]", fontsize=6, labelpad=1)
+            ax_err.set_title("error [m]", fontsize=7, pad=2)
+            ax_err.tick_params(labelbottom=False)
+            panels.append(ax_cmd)
+        else:
+            ax_err.set_ylabel("error [m]", fontsize=6, labelpad=1)
+            ax_err.set_xlabel("time [s]", fontsize=6, labelpad=1)
+        for a in panels:
             a.tick_params(labelsize=6, pad=1, length=2)
             a.grid(True, lw=0.3, alpha=0.5)
             for t0, t1, src in _merged_spans(trace):
                 a.axvspan(t0, t1, color=SOURCE_COLOURS.get(src, OTHER_SOURCE_COLOUR), alpha=0.3, lw=0)
             if trace.failsafe_time is not None:
                 a.axvline(trace.failsafe_time, color=FAILSAFE_COLOUR, ls="-.", lw=0.8)
-        ax_err.tick_params(labelbottom=False)
         ax_err.yaxis.set_minor_formatter(NullFormatter())  # under a decade, log minor labels are huge
-        self.cursors = [a.axvline(0.0, color="k", lw=0.8) for a in (ax_err, ax_cmd)]
+        self.cursors = [a.axvline(0.0, color="k", lw=0.8) for a in panels]
 
         self._ramp = np.linspace(0.05, 1.0, TRAIL_SEGMENTS)
 
-    def update(self, k: int) -> None:
+    def update(self, k: int, ended: bool = False) -> None:
+        """Draw step k of the trace. ended: the video's clock has passed the end of this flight
+        (a montage panel whose flight crashed early), said in the status line."""
         tr = self.trace
         s = tr.states[k]
         now = float(tr.time[k])
@@ -231,7 +374,10 @@ class _Scene:
             self.target_dot.set_data_3d(*tr.target[k : k + 1].T)
         self.clock.set_text(f"t {now:5.2f} s  err {tr.error[k] * 100:6.1f} cm")
         src = tr.sources[k] if tr.sources is not None else POLICY
-        if tr.failsafe_time is not None and now >= tr.failsafe_time:
+        if ended:
+            self.status.set_text(f"ended at {tr.duration:.2f} s")
+            self.status.set_color(FAILSAFE_COLOUR)
+        elif tr.failsafe_time is not None and now >= tr.failsafe_time:
             self.status.set_text("FAILSAFE")
             self.status.set_color(FAILSAFE_COLOUR)
         elif src != POLICY:
