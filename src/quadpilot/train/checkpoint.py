@@ -184,17 +184,53 @@ def _load_randomization_state(batch, env: dict, source: str) -> None:
         raise CheckpointError(f"{source}: randomised plants do not fit this environment ({e})") from e
 
 
-def load_ppo_state(ppo: PPO, state: dict, source: str = "checkpoint") -> None:
-    """Put `state` (from `ppo_state_dict` or a loaded checkpoint) into `ppo`, which must have been
-    built with the same configuration. Raises CheckpointError if the shapes do not fit."""
-    batch = ppo.env.batch
+def _check_env_shapes(batch, env: dict, source: str) -> None:
+    """Raise CheckpointError if a checkpoint's environment arrays do not fit `batch`."""
     for name in _ENV_ARRAYS:
-        want, got = getattr(batch, name), state["env"][name]
+        want, got = getattr(batch, name), env[name]
         if tuple(got.shape) != want.shape:
             raise CheckpointError(
                 f"{source}: environment array {name!r} has shape {tuple(got.shape)}, this trainer expects "
                 f"{want.shape}; was it saved with a different num_envs or task?"
             )
+
+
+def _load_episode_state(agent, tr: dict) -> None:
+    """A checkpoint's "trainer" entries that PPO and SAC share into `agent`."""
+    agent._nonfinite_streak = int(tr["nonfinite_streak"])
+    agent.ep_returns = [float(x) for x in tr["ep_returns"]]
+    agent.ep_lengths = [int(x) for x in tr["ep_lengths"]]
+    agent.ep_success = [bool(x) for x in tr["ep_success"]]
+    agent._obs = tr["obs"].numpy().copy()
+
+
+def _load_env_state(agent, env: dict) -> None:
+    """A checkpoint's environment arrays, target radius and started flag into `agent.env`."""
+    batch = agent.env.batch
+    for name in _ENV_ARRAYS:
+        setattr(batch, name, env[name].numpy().astype(getattr(batch, name).dtype, copy=True))
+    batch.target_radius = float(env["target_radius"])
+    agent.env._started = bool(env["started"])
+
+
+def _load_rng_state(agent, rng: dict, source: str) -> None:
+    """A checkpoint's random generators (environment numpy, trainer and default torch) into
+    `agent` and torch. Raises CheckpointError on an unknown numpy bit generator."""
+    kind = rng["env"].get("bit_generator")
+    if kind not in _BIT_GENERATORS:
+        raise CheckpointError(f"{source}: unknown numpy bit generator {kind!r}; expected one of {_BIT_GENERATORS}")
+    bitgen = getattr(np.random, kind)()
+    bitgen.state = rng["env"]
+    agent.env._rng = np.random.Generator(bitgen)
+    agent.torch_gen.set_state(rng["torch_gen"])
+    torch.set_rng_state(rng["torch_default"])
+
+
+def load_ppo_state(ppo: PPO, state: dict, source: str = "checkpoint") -> None:
+    """Put `state` (from `ppo_state_dict` or a loaded checkpoint) into `ppo`, which must have been
+    built with the same configuration. Raises CheckpointError if the shapes do not fit."""
+    batch = ppo.env.batch
+    _check_env_shapes(batch, state["env"], source)
     try:
         ppo.model.load_state_dict(state["model"])
         ppo.opt.load_state_dict(state["optimizer"])
@@ -205,26 +241,11 @@ def load_ppo_state(ppo: PPO, state: dict, source: str = "checkpoint") -> None:
     ppo.global_step = int(state["global_step"])
     ppo.updates = int(state["updates"])
     tr = state["trainer"]
-    ppo._nonfinite_streak = int(tr["nonfinite_streak"])
-    ppo.ep_returns = [float(x) for x in tr["ep_returns"]]
-    ppo.ep_lengths = [int(x) for x in tr["ep_lengths"]]
-    ppo.ep_success = [bool(x) for x in tr["ep_success"]]
-    ppo._obs = tr["obs"].numpy().copy()
+    _load_episode_state(ppo, tr)
     ppo.load_extra_state(tr.get("extra_state"))
-    for name in _ENV_ARRAYS:
-        setattr(batch, name, state["env"][name].numpy().astype(getattr(batch, name).dtype, copy=True))
-    batch.target_radius = float(state["env"]["target_radius"])
-    ppo.env._started = bool(state["env"]["started"])
+    _load_env_state(ppo, state["env"])
     _load_randomization_state(batch, state["env"], source)
-    rng = state["rng"]
-    kind = rng["env"].get("bit_generator")
-    if kind not in _BIT_GENERATORS:
-        raise CheckpointError(f"{source}: unknown numpy bit generator {kind!r}; expected one of {_BIT_GENERATORS}")
-    bitgen = getattr(np.random, kind)()
-    bitgen.state = rng["env"]
-    ppo.env._rng = np.random.Generator(bitgen)
-    ppo.torch_gen.set_state(rng["torch_gen"])
-    torch.set_rng_state(rng["torch_default"])
+    _load_rng_state(ppo, state["rng"], source)
 
 
 def checkpoint_dict(ppo: PPO, extra: dict | None = None) -> dict:

@@ -438,13 +438,61 @@ def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
     return ppo, cur, preset, 0.0, None
 
 
-def _resume(args, explicit: dict, out: Path, argv: list[str]):
+def _restore_curriculum(agent, extra: dict):
+    """The waypoint curriculum a checkpoint's `extra` holds (None if the run has none), with the
+    agent's environment set to the radius it had reached."""
+    from .curriculum import CurriculumConfig, WaypointCurriculum
+
+    if extra.get("curriculum") is None:
+        return None
+    state = extra["curriculum"]
+    cfg = agent.cfg
+    cur = WaypointCurriculum(
+        CurriculumConfig.from_json(state["config"]), cfg.num_envs, cfg.rollout_steps, agent.env_cfg.episode_steps
+    )
+    cur.load_state_dict(state)
+    agent.env.set_target_radius(cur.radius)
+    return cur
+
+
+def _record_resume(
+    out: Path,
+    argv: list[str],
+    used: Path,
+    updates: int,
+    key: str,
+    cfg_json: dict,
+    columns: tuple[str, ...] | None = None,
+) -> None:
+    """A resume's bookkeeping: metrics.csv cut back to the checkpoint's `updates` (header
+    `columns`, by default runlog.COLUMNS), and config.json's `key` configuration replaced and the
+    resume appended to its "resumes". Raises UsageError if metrics.csv is not a file of this kind."""
     import json
 
+    from .runlog import COLUMNS, truncate_metrics, write_json
+
+    try:
+        dropped = truncate_metrics(out / "metrics.csv", updates, columns or COLUMNS)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    config_path = out / "config.json"
+    config = json.loads(config_path.read_text()) if config_path.exists() else {}
+    config[key] = cfg_json
+    config.setdefault("resumes", []).append(
+        {
+            "command": _command(argv),
+            "from": used.name,
+            "update": updates,
+            "at": _now(),
+            "metrics_rows_dropped": dropped,
+        }
+    )
+    write_json(config_path, config)
+
+
+def _resume(args, explicit: dict, out: Path, argv: list[str]):
     from .checkpoint import CheckpointError, has_checkpoint, load_for_resume, ppo_from_checkpoint
-    from .curriculum import CurriculumConfig, WaypointCurriculum
     from .ppo import PPOConfig
-    from .runlog import truncate_metrics, write_json
 
     if not has_checkpoint(out):
         if out.is_dir() and any(out.iterdir()):  # e.g. killed before its first update ended
@@ -489,32 +537,9 @@ def _resume(args, explicit: dict, out: Path, argv: list[str]):
         ppo = ppo_from_checkpoint(ckpt, cfg, source=str(used))
     except CheckpointError as e:
         raise UsageError(str(e)) from None
-    cur = None
-    if extra.get("curriculum") is not None:
-        cur_state = extra["curriculum"]
-        cur = WaypointCurriculum(
-            CurriculumConfig.from_json(cur_state["config"]), cfg.num_envs, cfg.rollout_steps, ppo.env_cfg.episode_steps
-        )
-        cur.load_state_dict(cur_state)
-        ppo.env.set_target_radius(cur.radius)
+    cur = _restore_curriculum(ppo, extra)
     _clean_stale_temps(out)
-    try:
-        dropped = truncate_metrics(out / "metrics.csv", ppo.updates)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-    config_path = out / "config.json"
-    config = json.loads(config_path.read_text()) if config_path.exists() else {}
-    config["ppo"] = cfg.to_json()
-    config.setdefault("resumes", []).append(
-        {
-            "command": _command(argv),
-            "from": used.name,
-            "update": ppo.updates,
-            "at": _now(),
-            "metrics_rows_dropped": dropped,
-        }
-    )
-    write_json(config_path, config)
+    _record_resume(out, argv, used, ppo.updates, "ppo", cfg.to_json())
     print(
         f"quad-train: resuming {out} from {used.name} at update {ppo.updates} ({ppo.global_step:,} steps)", flush=True
     )
@@ -523,9 +548,8 @@ def _resume(args, explicit: dict, out: Path, argv: list[str]):
 
 def _train(args, argv: list[str]) -> int:
     from .checkpoint import POLICY, save_checkpoint, save_for_resume, save_snapshot
-    from .evaluate import evaluate
     from .ppo import PPOConfig
-    from .runlog import MetricsLog, plot_curves, write_json
+    from .runlog import MetricsLog, plot_curves
 
     explicit = {k: getattr(args, k) for k in PPO_OPTIONS if getattr(args, k) is not None}
     if args.arch:
@@ -562,26 +586,8 @@ def _train(args, argv: list[str]) -> int:
             while ppo.updates < cfg.num_updates and stop.signal is None:
                 m = ppo.iterate()
                 m["time_s"] = train_time()
-                if args.eval_every and ppo.updates % args.eval_every == 0:
-                    te = time.perf_counter()
-                    r = evaluate(ppo.act_deterministic, _eval_config(ppo, cur), episodes=args.eval_episodes or 100)
-                    eval_s += time.perf_counter() - te
-                    m["eval_success_rate"] = r[SUCCESS_KEY.get(args.task, "success_rate")]
-                    m["eval_error_m"] = r["mean_error_last_window_m"]
-                    final_stage = cur is None or cur.stage == len(cur.cfg.radii) - 1
-                    if first_success is None and final_stage and m["eval_success_rate"] >= SUCCESS_BAR:
-                        first_success = {
-                            "global_step": ppo.global_step,
-                            "update": ppo.updates,
-                            "train_time_s": m["time_s"],
-                            "success_rate": m["eval_success_rate"],
-                            "episodes": r["episodes"],
-                        }
-                if cur is not None:
-                    m["curriculum_stage"], m["target_radius"] = cur.stage, cur.radius
-                    n = int(m["episodes"])
-                    if cur.observe(ppo.ep_success[len(ppo.ep_success) - n :] if n else []):
-                        ppo.env.set_target_radius(cur.radius)
+                first_success, dt = _evaluate_and_advance(ppo, args, cur, m, first_success)
+                eval_s += dt
                 log.write(m)  # the row first: a kill before the save leaves a row the resume drops
                 last = m
                 if args.snapshot_every and (ppo.updates % args.snapshot_every == 0 or ppo.updates == cfg.num_updates):
@@ -610,25 +616,73 @@ def _train(args, argv: list[str]) -> int:
     save_checkpoint(out / POLICY, ppo, extra(last))
     summary = f"quad-train: done, {ppo.global_step:,} steps in {ppo.updates} updates; policy in {out / POLICY}"
     if args.eval_episodes:
-        result = evaluate(ppo.act_deterministic, _eval_config(ppo, cur), episodes=args.eval_episodes)
-        meta = {
-            "policy": POLICY,
-            "global_step": ppo.global_step,
-            "updates": ppo.updates,
-            "train_time_s": extra(last)["elapsed_s"],
-            "first_success": first_success,
-            "time_breakdown_s": _time_breakdown(out / "metrics.csv"),
-        }
-        if cur is not None:
-            meta.update(curriculum_stage=cur.stage, target_radius=cur.radius)
-        write_json(out / "eval.json", {**meta, **result})
-        summary += f"; evaluation: success {result['success_rate']:.0%} over {args.eval_episodes} episodes"
+        summary += _final_evaluation(
+            ppo,
+            args,
+            cur,
+            out,
+            lambda: {
+                "policy": POLICY,
+                "global_step": ppo.global_step,
+                "updates": ppo.updates,
+                "train_time_s": extra(last)["elapsed_s"],
+                "first_success": first_success,
+                "time_breakdown_s": _time_breakdown(out / "metrics.csv"),
+            },
+        )
     print(summary, flush=True)
     return 0
 
 
 SUCCESS_BAR = 0.95  # the issue's bar: success rate over 100 deterministic episodes
 SUCCESS_KEY = {"circle": "circle_success_rate"}  # hover and waypoint use evaluate()'s success_rate
+
+
+def _evaluate_and_advance(agent, args, cur, m: dict, first_success: dict | None) -> tuple[dict | None, float]:
+    """After an iteration of `agent` (PPO or SAC) with metrics row `m`: every --eval-every
+    iterations, the deterministic evaluation into m's eval columns and, the first time it passes
+    SUCCESS_BAR at the final curriculum stage, `first_success`; then the curriculum's stage into
+    `m` and its advance on the iteration's episodes. Returns (first_success, seconds spent
+    evaluating), the latter not counted as training time."""
+    from .evaluate import evaluate
+
+    eval_s = 0.0
+    if args.eval_every and agent.updates % args.eval_every == 0:
+        te = time.perf_counter()
+        r = evaluate(agent.act_deterministic, _eval_config(agent, cur), episodes=args.eval_episodes or 100)
+        eval_s = time.perf_counter() - te
+        m["eval_success_rate"] = r[SUCCESS_KEY.get(args.task, "success_rate")]
+        m["eval_error_m"] = r["mean_error_last_window_m"]
+        final_stage = cur is None or cur.stage == len(cur.cfg.radii) - 1
+        if first_success is None and final_stage and m["eval_success_rate"] >= SUCCESS_BAR:
+            first_success = {
+                "global_step": agent.global_step,
+                "update": agent.updates,
+                "train_time_s": m["time_s"],
+                "success_rate": m["eval_success_rate"],
+                "episodes": r["episodes"],
+            }
+    if cur is not None:
+        m["curriculum_stage"], m["target_radius"] = cur.stage, cur.radius
+        n = int(m["episodes"])
+        if cur.observe(agent.ep_success[len(agent.ep_success) - n :] if n else []):
+            agent.env.set_target_radius(cur.radius)
+    return first_success, eval_s
+
+
+def _final_evaluation(agent, args, cur, out: Path, meta) -> str:
+    """The end-of-run evaluation of `agent` (PPO or SAC) over --eval-episodes episodes, written to
+    eval.json after `meta()` (called once the evaluation is done, so its training time counts as
+    before) and the curriculum's final stage; returns the summary line's evaluation clause."""
+    from .evaluate import evaluate
+    from .runlog import write_json
+
+    result = evaluate(agent.act_deterministic, _eval_config(agent, cur), episodes=args.eval_episodes)
+    info = meta()
+    if cur is not None:
+        info.update(curriculum_stage=cur.stage, target_radius=cur.radius)
+    write_json(out / "eval.json", {**info, **result})
+    return f"; evaluation: success {result['success_rate']:.0%} over {args.eval_episodes} episodes"
 
 
 def _eval_config(ppo, cur):
@@ -639,13 +693,13 @@ def _eval_config(ppo, cur):
     return dataclasses.replace(ppo.env_cfg, target_radius=cur.radius)
 
 
-def _time_breakdown(metrics_path: Path) -> dict:
-    """Where the training time went, summed over every update in metrics.csv: the environment
-    (dynamics, observations, rewards, resets), policy inference and bookkeeping during rollouts,
-    and the PPO update (GAE is in the rollout figure)."""
-    from .runlog import read_metrics
+def _time_breakdown(metrics_path: Path, columns: tuple[str, ...] | None = None) -> dict:
+    """Where the training time went, summed over every update in metrics.csv (header `columns`,
+    by default runlog.COLUMNS): the environment (dynamics, observations, rewards, resets), policy
+    inference and bookkeeping during rollouts, and the PPO update (GAE is in the rollout figure)."""
+    from .runlog import COLUMNS, read_metrics
 
-    m = read_metrics(metrics_path)
+    m = read_metrics(metrics_path, columns or COLUMNS)
     parts = {k: float(np.nansum(m[k])) for k in ("env_s", "inference_s", "update_s")}
     total = sum(parts.values())
     return {**parts, "fractions": {k: (v / total if total else None) for k, v in parts.items()}}

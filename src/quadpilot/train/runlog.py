@@ -60,15 +60,16 @@ def _cell(v) -> str:
 
 
 class MetricsLog:
-    """Append-only metrics.csv writer with a fixed header; keys not in COLUMNS are ignored and
-    missing ones left blank."""
+    """Append-only metrics.csv writer with a fixed header (`columns`, by default COLUMNS; SAC
+    passes its own); keys not in the columns are ignored and missing ones left blank."""
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, columns: tuple[str, ...] = COLUMNS) -> None:
         self.path = Path(path)
+        self.columns = tuple(columns)
         fresh = not self.path.exists() or self.path.stat().st_size == 0
         self._f = open(self.path, "a", encoding="utf-8", newline="")  # closed in close()
         if fresh:
-            self._write_line(HEADER)
+            self._write_line(",".join(self.columns))
 
     def _write_line(self, line: str) -> None:
         self._f.write(line + "\n")
@@ -76,7 +77,7 @@ class MetricsLog:
         os.fsync(self._f.fileno())
 
     def write(self, metrics: dict) -> None:
-        self._write_line(",".join(_cell(metrics.get(c)) for c in COLUMNS))
+        self._write_line(",".join(_cell(metrics.get(c)) for c in self.columns))
 
     def close(self) -> None:
         self._f.close()
@@ -88,21 +89,23 @@ class MetricsLog:
         self.close()
 
 
-def _rows(path: Path) -> list[dict[str, str]]:
-    """Complete, well-formed rows of a metrics.csv; a torn last line (a kill mid-write) is dropped.
-    Raises ValueError if the header is not this version's."""
+def _rows(path: Path, columns: tuple[str, ...] = COLUMNS) -> list[dict[str, str]]:
+    """Complete, well-formed rows of a metrics.csv with header `columns`; a torn last line (a kill
+    mid-write) is dropped. Raises ValueError if the header is not the expected one (e.g. a file of
+    another version, or of the other algorithm)."""
+    header = ",".join(columns)
     text = path.read_text(encoding="utf-8")
     lines = text.split("\n")
     complete = lines[:-1]  # everything before the last newline; a torn tail is lines[-1]
     if not complete:
         return []
-    if complete[0] != HEADER:
-        raise ValueError(f"{path}: header {complete[0]!r} is not the expected {HEADER!r}")
+    if complete[0] != header:
+        raise ValueError(f"{path}: header {complete[0]!r} is not the expected {header!r}")
     out = []
     for row in csv.reader(complete[1:]):
-        if len(row) != len(COLUMNS):
+        if len(row) != len(columns):
             continue
-        d = dict(zip(COLUMNS, row, strict=True))
+        d = dict(zip(columns, row, strict=True))
         try:
             int(d["update"])
         except ValueError:
@@ -111,28 +114,29 @@ def _rows(path: Path) -> list[dict[str, str]]:
     return out
 
 
-def truncate_metrics(path: str | os.PathLike, updates: int) -> int:
+def truncate_metrics(path: str | os.PathLike, updates: int, columns: tuple[str, ...] = COLUMNS) -> int:
     """Keep the rows of updates 1..`updates` (a checkpoint's count) and rewrite the file
-    atomically; returns how many rows were dropped. A missing file is created with the header."""
+    atomically; returns how many rows were dropped. A missing file is created with the header
+    (`columns`, by default COLUMNS)."""
     path = Path(path)
-    rows = _rows(path) if path.exists() else []
+    rows = _rows(path, columns) if path.exists() else []
     keep = [r for r in rows if int(r["update"]) <= updates]
     buf = io.StringIO()
-    buf.write(HEADER + "\n")
+    buf.write(",".join(columns) + "\n")
     for r in keep:
-        buf.write(",".join(r[c] for c in COLUMNS) + "\n")
+        buf.write(",".join(r[c] for c in columns) + "\n")
     atomic_write(path, lambda f: f.write(buf.getvalue().encode("utf-8")))
     return len(rows) - len(keep)
 
 
-def read_metrics(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """metrics.csv as float columns (blank cells are NaN)."""
-    rows = _rows(Path(path))
+def read_metrics(path: str | os.PathLike, columns: tuple[str, ...] = COLUMNS) -> dict[str, np.ndarray]:
+    """metrics.csv (header `columns`, by default COLUMNS) as float columns (blank cells are NaN)."""
+    rows = _rows(Path(path), columns)
 
     def num(s: str) -> float:
         return float(s) if s else math.nan
 
-    return {c: np.array([num(r[c]) for r in rows], np.float64) for c in COLUMNS}
+    return {c: np.array([num(r[c]) for r in rows], np.float64) for c in columns}
 
 
 def _json_safe(obj):

@@ -43,7 +43,6 @@ checkpoint first writes the transitions added since the previous one as an immut
 from __future__ import annotations
 
 import copy
-import csv
 import dataclasses
 import io
 import math
@@ -60,14 +59,18 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from . import runlog
 from .checkpoint import (
-    _BIT_GENERATORS,
     _ENV_ARRAYS,
     LATEST,
     POLICY,
     PREVIOUS,
     SCHEMA,
     CheckpointError,
+    _check_env_shapes,
+    _load_env_state,
+    _load_episode_state,
+    _load_rng_state,
     atomic_write,
     load_checkpoint,
     plain,
@@ -625,14 +628,7 @@ def checkpoint_dict(sac: SAC, extra: dict | None = None) -> dict:
 def load_sac_state(sac: SAC, ckpt: dict, source: str = "checkpoint") -> None:
     """Put a loaded checkpoint's state into `sac` (built with the same configuration), all but the
     replay rows (`load_replay`). Raises CheckpointError if shapes do not fit."""
-    batch = sac.env.batch
-    for name in _ENV_ARRAYS:
-        want, got = getattr(batch, name), ckpt["env"][name]
-        if tuple(got.shape) != want.shape:
-            raise CheckpointError(
-                f"{source}: environment array {name!r} has shape {tuple(got.shape)}, this trainer expects "
-                f"{want.shape}; was it saved with a different num_envs or task?"
-            )
+    _check_env_shapes(sac.env.batch, ckpt["env"], source)
     try:
         sac.actor.load_state_dict(ckpt["model"])
         sac.critic.load_state_dict(ckpt["critic"])
@@ -648,25 +644,9 @@ def load_sac_state(sac: SAC, ckpt: dict, source: str = "checkpoint") -> None:
     sac.global_step = int(ckpt["global_step"])
     sac.updates = int(ckpt["updates"])
     sac.grad_steps = int(ckpt["grad_steps"])
-    tr = ckpt["trainer"]
-    sac._nonfinite_streak = int(tr["nonfinite_streak"])
-    sac.ep_returns = [float(x) for x in tr["ep_returns"]]
-    sac.ep_lengths = [int(x) for x in tr["ep_lengths"]]
-    sac.ep_success = [bool(x) for x in tr["ep_success"]]
-    sac._obs = tr["obs"].numpy().copy()
-    for name in _ENV_ARRAYS:
-        setattr(batch, name, ckpt["env"][name].numpy().astype(getattr(batch, name).dtype, copy=True))
-    batch.target_radius = float(ckpt["env"]["target_radius"])
-    sac.env._started = bool(ckpt["env"]["started"])
-    rng = ckpt["rng"]
-    kind = rng["env"].get("bit_generator")
-    if kind not in _BIT_GENERATORS:
-        raise CheckpointError(f"{source}: unknown numpy bit generator {kind!r}; expected one of {_BIT_GENERATORS}")
-    bitgen = getattr(np.random, kind)()
-    bitgen.state = rng["env"]
-    sac.env._rng = np.random.Generator(bitgen)
-    sac.torch_gen.set_state(rng["torch_gen"])
-    torch.set_rng_state(rng["torch_default"])
+    _load_episode_state(sac, ckpt["trainer"])
+    _load_env_state(sac, ckpt["env"])
+    _load_rng_state(sac, ckpt["rng"], source)
 
 
 _CHUNK = re.compile(r"^(\d{12})-(\d{12})\.pt$")
@@ -808,66 +788,26 @@ COLUMNS = (
 HEADER = ",".join(COLUMNS)
 
 
-class MetricsLog:
-    """metrics.csv of a SAC run: fixed header, one row per iteration, flushed and fsync'd."""
+class MetricsLog(runlog.MetricsLog):
+    """metrics.csv of a SAC run: runlog.MetricsLog with SAC's COLUMNS, one row per iteration."""
 
     def __init__(self, path: str | os.PathLike) -> None:
-        from .runlog import _cell
-
-        self._cell = _cell
-        self.path = Path(path)
-        fresh = not self.path.exists() or self.path.stat().st_size == 0
-        self._f = open(self.path, "a", encoding="utf-8", newline="")  # closed in close()
-        if fresh:
-            self._line(HEADER)
-
-    def _line(self, line: str) -> None:
-        self._f.write(line + "\n")
-        self._f.flush()
-        os.fsync(self._f.fileno())
-
-    def write(self, m: dict) -> None:
-        self._line(",".join(self._cell(m.get(c)) for c in COLUMNS))
-
-    def close(self) -> None:
-        self._f.close()
-
-    def __enter__(self) -> MetricsLog:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        super().__init__(path, COLUMNS)
 
 
 def read_rows(path: str | os.PathLike) -> list[dict[str, str]]:
     """Complete rows of a SAC metrics.csv (a torn last line is dropped)."""
-    path = Path(path)
-    lines = path.read_text(encoding="utf-8").split("\n")[:-1]
-    if not lines:
-        return []
-    if lines[0] != HEADER:
-        raise ValueError(f"{path}: header {lines[0]!r} is not the SAC metrics header {HEADER!r}")
-    rows = []
-    for r in csv.reader(lines[1:]):
-        if len(r) == len(COLUMNS) and r[1].isdigit():
-            rows.append(dict(zip(COLUMNS, r, strict=True)))
-    return rows
+    return runlog._rows(Path(path), COLUMNS)
 
 
 def read_metrics(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """A SAC metrics.csv as float columns (blank cells are NaN)."""
-    rows = read_rows(path)
-    return {c: np.array([float(r[c]) if r[c] else math.nan for r in rows]) for c in COLUMNS}
+    return runlog.read_metrics(path, COLUMNS)
 
 
 def truncate_metrics(path: str | os.PathLike, updates: int) -> int:
     """Keep rows of iterations 1 … `updates`, rewrite atomically; returns rows dropped."""
-    path = Path(path)
-    rows = read_rows(path) if path.exists() else []
-    keep = [r for r in rows if int(r["update"]) <= updates]
-    text = "\n".join([HEADER, *(",".join(r[c] for c in COLUMNS) for r in keep)]) + "\n"
-    atomic_write(path, lambda f: f.write(text.encode("utf-8")))
-    return len(rows) - len(keep)
+    return runlog.truncate_metrics(path, updates, COLUMNS)
 
 
 def plot_curves(metrics_path: str | os.PathLike, out_path: str | os.PathLike, title: str = "") -> Path:
@@ -1013,12 +953,8 @@ def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
 
 
 def _resume(args, explicit: dict, out: Path, argv: list[str], may_change: tuple[str, ...]):
-    import json
-
     from .checkpoint import has_checkpoint, load_for_resume
-    from .cli import UsageError, _clean_stale_temps, _command, _now
-    from .curriculum import CurriculumConfig, WaypointCurriculum
-    from .runlog import write_json
+    from .cli import UsageError, _clean_stale_temps, _record_resume, _restore_curriculum
 
     if not has_checkpoint(out):
         raise UsageError(f"--resume: no checkpoint.pt in {out}; start the run without --resume")
@@ -1055,31 +991,8 @@ def _resume(args, explicit: dict, out: Path, argv: list[str], may_change: tuple[
     except CheckpointError as e:
         raise UsageError(str(e)) from None
     extra = ckpt["extra"]
-    cur = None
-    if extra.get("curriculum") is not None:
-        c = extra["curriculum"]
-        cur = WaypointCurriculum(
-            CurriculumConfig.from_json(c["config"]), cfg.num_envs, cfg.rollout_steps, sac.env_cfg.episode_steps
-        )
-        cur.load_state_dict(c)
-        sac.env.set_target_radius(cur.radius)
-    try:
-        dropped = truncate_metrics(out / "metrics.csv", sac.updates)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-    config_path = out / "config.json"
-    config = json.loads(config_path.read_text()) if config_path.exists() else {}
-    config["sac"] = cfg.to_json()
-    config.setdefault("resumes", []).append(
-        {
-            "command": _command(argv),
-            "from": used.name,
-            "update": sac.updates,
-            "at": _now(),
-            "metrics_rows_dropped": dropped,
-        }
-    )
-    write_json(config_path, config)
+    cur = _restore_curriculum(sac, extra)
+    _record_resume(out, argv, used, sac.updates, "sac", cfg.to_json(), COLUMNS)
     print(
         f"quad-train: resuming {out} from {used.name} at iteration {sac.updates} ({sac.global_step:,} steps)",
         flush=True,
@@ -1088,9 +1001,7 @@ def _resume(args, explicit: dict, out: Path, argv: list[str], may_change: tuple[
 
 
 def _loop(args, argv, out: Path, sac: SAC, cur, elapsed0: float, first_success, stop) -> int:
-    from .cli import SUCCESS_BAR, SUCCESS_KEY, _command, _eval_config, _Progress, _resume_argv
-    from .evaluate import evaluate
-    from .runlog import write_json
+    from .cli import _command, _evaluate_and_advance, _final_evaluation, _Progress, _resume_argv, _time_breakdown
 
     cfg = sac.cfg
     t0 = time.perf_counter()
@@ -1117,26 +1028,8 @@ def _loop(args, argv, out: Path, sac: SAC, cur, elapsed0: float, first_success, 
             while sac.updates < cfg.num_updates and stop.signal is None:
                 m = sac.iterate()
                 m["time_s"] = train_time()
-                if args.eval_every and sac.updates % args.eval_every == 0:
-                    te = time.perf_counter()
-                    r = evaluate(sac.act_deterministic, _eval_config(sac, cur), episodes=args.eval_episodes or 100)
-                    eval_s += time.perf_counter() - te
-                    m["eval_success_rate"] = r[SUCCESS_KEY.get(args.task, "success_rate")]
-                    m["eval_error_m"] = r["mean_error_last_window_m"]
-                    final_stage = cur is None or cur.stage == len(cur.cfg.radii) - 1
-                    if first_success is None and final_stage and m["eval_success_rate"] >= SUCCESS_BAR:
-                        first_success = {
-                            "global_step": sac.global_step,
-                            "update": sac.updates,
-                            "train_time_s": m["time_s"],
-                            "success_rate": m["eval_success_rate"],
-                            "episodes": r["episodes"],
-                        }
-                if cur is not None:
-                    m["curriculum_stage"], m["target_radius"] = cur.stage, cur.radius
-                    n = int(m["episodes"])
-                    if cur.observe(sac.ep_success[len(sac.ep_success) - n :] if n else []):
-                        sac.env.set_target_radius(cur.radius)
+                first_success, dt = _evaluate_and_advance(sac, args, cur, m, first_success)
+                eval_s += dt
                 log.write(m)
                 last = m
                 if sac.updates % args.checkpoint_every == 0 or sac.updates == cfg.num_updates:
@@ -1163,23 +1056,21 @@ def _loop(args, argv, out: Path, sac: SAC, cur, elapsed0: float, first_success, 
     save_policy(out / POLICY, sac, extra(last))
     summary = f"quad-train: done (sac), {sac.global_step:,} steps in {sac.updates} iterations; policy in {out / POLICY}"
     if args.eval_episodes:
-        result = evaluate(sac.act_deterministic, _eval_config(sac, cur), episodes=args.eval_episodes)
-        m = read_metrics(out / "metrics.csv")
-        parts = {k: float(np.nansum(m[k])) for k in ("env_s", "inference_s", "update_s")}
-        total = sum(parts.values())
-        meta = {
-            "algo": "sac",
-            "policy": POLICY,
-            "global_step": sac.global_step,
-            "updates": sac.updates,
-            "grad_steps": sac.grad_steps,
-            "train_time_s": extra(last)["elapsed_s"],
-            "first_success": first_success,
-            "time_breakdown_s": {**parts, "fractions": {k: (v / total if total else None) for k, v in parts.items()}},
-        }
-        if cur is not None:
-            meta.update(curriculum_stage=cur.stage, target_radius=cur.radius)
-        write_json(out / "eval.json", {**meta, **result})
-        summary += f"; evaluation: success {result['success_rate']:.0%} over {args.eval_episodes} episodes"
+        summary += _final_evaluation(
+            sac,
+            args,
+            cur,
+            out,
+            lambda: {
+                "algo": "sac",
+                "policy": POLICY,
+                "global_step": sac.global_step,
+                "updates": sac.updates,
+                "grad_steps": sac.grad_steps,
+                "train_time_s": extra(last)["elapsed_s"],
+                "first_success": first_success,
+                "time_breakdown_s": _time_breakdown(out / "metrics.csv", COLUMNS),
+            },
+        )
     print(summary, flush=True)
     return 0
