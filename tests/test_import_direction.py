@@ -38,8 +38,12 @@ def test_core_imports_nothing_of_ours():
 
 def test_runtime_loads_and_flies_a_policy_with_torch_unimportable():
     """In a fresh interpreter where `import torch` (and gymnasium) fail, the runtime still loads
-    the shipped ONNX file on both backends, passes its contract check and acts through the
-    safety monitor; the simulator package imports too."""
+    the shipped ONNX file on every backend (the C one where a compiler exists), passes its
+    contract check and acts through the safety monitor; the simulator package imports too, and
+    nothing of train or export is imported."""
+    from quadpilot.runtime.cbackend import find_compiler
+
+    backends = ("onnxruntime", "numpy") + (("c",) if find_compiler() else ())
     code = """
 import sys
 class Refuse:
@@ -50,15 +54,15 @@ class Refuse:
 sys.meta_path.insert(0, Refuse())
 import quadpilot.firmware_sim
 from quadpilot.runtime import SafetyMonitor, load_policy
-for backend in ("onnxruntime", "numpy"):
+for backend in sys.argv[2:]:
     monitor = SafetyMonitor(load_policy(sys.argv[1], backend))
     motors = monitor.act(monitor.policy.info.golden_obs[0])
     assert motors.shape == (4,) and monitor.source == "policy", (motors, monitor.events)
-print(sorted(m for m in sys.modules if m.split(".")[0] in ("torch", "gymnasium")))
+print(sorted(m for m in sys.modules if m.startswith(("torch", "gymnasium", "quadpilot.train", "quadpilot.export"))))
 """
     import pathlib
 
     model = pathlib.Path(__file__).parents[1] / "models" / "hover" / "policy.onnx"
-    out = subprocess.run([sys.executable, "-c", code, str(model)], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-c", code, str(model), *backends], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
