@@ -269,7 +269,7 @@ class PPO:
         returns sequences instead of flat transitions (`recurrent_ppo.collect`)."""
         if self.recurrent:
             return recurrent_ppo.collect(self)
-        cfg, n, T = self.cfg, self.cfg.num_envs, self.cfg.rollout_steps
+        n, T = self.cfg.num_envs, self.cfg.rollout_steps
         obs_dim = self.obs_dim
         obs_buf = np.zeros((T, n, obs_dim), np.float32)
         act_buf = torch.zeros((T, n, 4))
@@ -306,15 +306,7 @@ class PPO:
             self._obs = raw
             obs_n = self._norm(raw)
         val_buf[T] = self.model.value(torch.from_numpy(obs_n)).numpy()
-        if cfg.normalize_obs:  # statistics move between rollouts, never within one
-            self.obs_rms.update(np.concatenate(raw_seen))
-        next_val = val_buf[1:].copy()
-        next_val[trunc_buf] = final_val[trunc_buf]
-        adv, ret = compute_gae(
-            rew_buf * cfg.reward_scale, val_buf[:T], next_val, term_buf, trunc_buf, cfg.gamma, cfg.lam
-        )
-        self.global_step += T * n
-        self.last_env_s = env_s
+        adv, ret = self._finish_rollout(raw_seen, rew_buf, val_buf, final_val, term_buf, trunc_buf, env_s)
         flat = lambda a: torch.as_tensor(a, dtype=torch.float32).reshape(T * n, *a.shape[2:])  # noqa: E731
         return {
             "obs": flat(obs_buf),
@@ -324,6 +316,20 @@ class PPO:
             "ret": flat(ret),
             "val": flat(val_buf[:T]),
         }
+
+    def _finish_rollout(self, raw_seen, rew, val, final_val, term, trunc, env_s: float):
+        """The end of every rollout, feed-forward or recurrent: the normaliser update, the
+        bootstrap value of time-limit truncations (V of the final observation, never on
+        termination) and GAE. rew, term, trunc, final_val (T, n); val (T + 1, n). Returns (adv, ret)."""
+        cfg = self.cfg
+        if cfg.normalize_obs:  # statistics move between rollouts, never within one
+            self.obs_rms.update(np.concatenate(raw_seen))
+        next_val = val[1:].copy()
+        next_val[trunc] = final_val[trunc]
+        adv, ret = compute_gae(rew * cfg.reward_scale, val[:-1], next_val, term, trunc, cfg.gamma, cfg.lam)
+        self.global_step += rew.size
+        self.last_env_s = env_s
+        return adv, ret
 
     # --- update --------------------------------------------------------------------------
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:

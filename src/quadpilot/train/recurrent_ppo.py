@@ -30,7 +30,6 @@ import time
 import numpy as np
 import torch
 
-from .gae import compute_gae
 from .history import History
 
 STATE_KEYS = ("actor_h", "actor_c", "critic_h", "critic_c")
@@ -147,13 +146,7 @@ def collect(ppo) -> dict[str, torch.Tensor]:
     v_next, _ = model.value_sequence(torch.from_numpy(obs_n).unsqueeze(0), (ch * keep, cc * keep))
     val_buf[T] = v_next[0].numpy()
     ppo.rollout_state = {"actor_h": ah, "actor_c": ac, "critic_h": ch, "critic_c": cc, "start": start}
-    if cfg.normalize_obs:
-        ppo.obs_rms.update(np.concatenate(raw_seen))
-    next_val = val_buf[1:].copy()
-    next_val[trunc_buf] = final_val[trunc_buf]
-    adv, ret = compute_gae(rew_buf * cfg.reward_scale, val_buf[:T], next_val, term_buf, trunc_buf, cfg.gamma, cfg.lam)
-    ppo.global_step += T * n
-    ppo.last_env_s = env_s
+    adv, ret = ppo._finish_rollout(raw_seen, rew_buf, val_buf, final_val, term_buf, trunc_buf, env_s)
     f32 = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
     out = {
         "obs": to_sequences(f32(obs_buf), L),
