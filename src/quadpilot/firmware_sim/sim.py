@@ -294,10 +294,9 @@ class Plant:
         self.params = ParamBatch.from_preset(vehicle, 1)
         self.dt = dt
         self.wind = np.asarray(wind, np.float64)
-        # F = drag·(wind − v): core.dynamics applies −drag·v itself (params.drag); the constant
-        # drag·wind/m is added after the step with the integrator's own constant-acceleration
-        # formula, which is exactly what adding it inside the step would give.
-        self._wind_acc = vehicle.drag * self.wind / vehicle.mass
+        # F = drag·(wind − v): core.dynamics applies −drag·v itself (params.drag) and takes the
+        # drag·wind part as its external force, as the training environments' wind does.
+        self._wind_force = vehicle.drag * self.wind  # N, world ENU
         # Gusts: each axis a first-order Gauss-Markov (Ornstein-Uhlenbeck) velocity with standard
         # deviation gust_std and correlation time gust_tau_s, discretised exactly per step (the
         # first-order shaping filter behind the Dryden model's low-frequency part, MIL-F-8785C).
@@ -324,16 +323,18 @@ class Plant:
 
     def step(self, command: np.ndarray) -> None:
         """Advance one dt with `command` (4,) in [0, 1] held."""
-        s, w = dynamics.step(
-            self.state[None], self.rotor[None], np.asarray(command, np.float64)[None], self.params, self.dt
-        )
-        acc = self._wind_acc
+        force = self._wind_force
         if self.gust_std > 0:
             self.gust = self._gust_decay * self.gust + self._gust_kick * self._rng.normal(size=3)
-            acc = self.vehicle.drag * self.air / self.vehicle.mass
-        if acc.any():
-            s[0, 0:3] += 0.5 * self.dt * self.dt * acc
-            s[0, 3:6] += self.dt * acc
+            force = self.vehicle.drag * self.air
+        s, w = dynamics.step(
+            self.state[None],
+            self.rotor[None],
+            np.asarray(command, np.float64)[None],
+            self.params,
+            self.dt,
+            force=force[None] if force.any() else None,
+        )
         self.state, self.rotor = s[0], w[0]
 
     @property
