@@ -1,0 +1,96 @@
+"""Oracle tests of the running observation normaliser (`core.normalize.RunningMeanStd`): the
+parallel mean/variance merge of Chan, Golub & LeVeque (1979) must equal np.mean / np.var over
+everything seen, and `normalize` must compute clip((x − mean)/std, ±clip)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from quadpilot.core.normalize import RunningMeanStd
+
+RNG = np.random.default_rng(7)
+# batches of different sizes, means and spreads (the merge's δ² term matters), one of a single row
+BATCHES = [
+    RNG.normal([0.0, 5.0, -3.0], [1.0, 0.1, 4.0], size=(7, 3)),
+    RNG.normal([2.0, -1.0, 10.0], [3.0, 2.0, 0.5], size=(50, 3)),
+    np.array([[100.0, -100.0, 0.0]]),
+    RNG.normal([-4.0, 0.0, 1.0], [0.2, 7.0, 1.0], size=(13, 3)),
+]
+
+
+def test_running_statistics_equal_numpy_over_the_concatenation():
+    """With a negligible prior count the merged statistics are those of all rows at once."""
+    rms = RunningMeanStd((3,), epsilon=1e-12)
+    for b in BATCHES:
+        rms.update(b)
+    x = np.concatenate(BATCHES)
+    np.testing.assert_allclose(rms.mean, x.mean(axis=0), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(rms.var, x.var(axis=0), rtol=1e-9)  # population variance, ddof = 0
+    assert rms.count == pytest.approx(len(x), abs=1e-9)
+
+
+def test_the_default_prior_is_a_pseudo_sample_of_weight_epsilon():
+    """The default count 1e-4 starts from mean 0, variance 1: the result is the weighted pooled
+    mean and variance of that prior and the data, exactly."""
+    eps = 1e-4
+    rms = RunningMeanStd((3,))
+    for b in BATCHES:
+        rms.update(b)
+    x = np.concatenate(BATCHES)
+    n = len(x) + eps
+    mean = x.sum(axis=0) / n
+    var = (eps * (1.0 + mean**2) + ((x - mean) ** 2).sum(axis=0)) / n
+    np.testing.assert_allclose(rms.mean, mean, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(rms.var, var, rtol=1e-10)
+
+
+def test_hand_values_of_a_two_batch_merge():
+    """Batches {1, 3} and {5}: mean 3, population variance ((1−3)² + 0 + (5−3)²)/3 = 8/3."""
+    rms = RunningMeanStd((1,), epsilon=1e-12)
+    rms.update(np.array([[1.0], [3.0]]))
+    np.testing.assert_allclose(rms.mean, [2.0], atol=1e-9)
+    np.testing.assert_allclose(rms.var, [1.0], atol=1e-9)
+    rms.update(np.array([[5.0]]))
+    np.testing.assert_allclose(rms.mean, [3.0], atol=1e-9)
+    np.testing.assert_allclose(rms.var, [8.0 / 3.0], atol=1e-9)
+
+
+def test_normalize_subtracts_the_mean_and_divides_by_the_std():
+    rms = RunningMeanStd((3,))
+    rms.load_state_dict(
+        {"mean": np.array([1.0, -2.0, 0.5]), "var": np.array([4.0, 0.25, 1.0]), "count": 10.0, "clip": 10.0}
+    )
+    x = np.array([[3.0, -1.0, 0.5], [-1.0, -3.0, 2.5]])
+    # (3 − 1)/2 = 1, (−1 + 2)/0.5 = 2, 0;  (−1 − 1)/2 = −1, (−3 + 2)/0.5 = −2, 2/1 = 2   (std = √(var + 1e-8))
+    out = rms.normalize(x)
+    assert out.dtype == np.float32
+    np.testing.assert_allclose(out, [[1.0, 2.0, 0.0], [-1.0, -2.0, 2.0]], rtol=1e-6, atol=1e-7)
+    assert rms.std[0] == pytest.approx(math.sqrt(4.0 + 1e-8), rel=1e-15)
+
+
+def test_normalize_clips_at_plus_minus_clip():
+    rms = RunningMeanStd((2,), clip=5.0)
+    rms.load_state_dict({"mean": np.zeros(2), "var": np.ones(2), "count": 10.0, "clip": 5.0})
+    out = rms.normalize(np.array([[100.0, -100.0], [4.0, -4.5]]))
+    np.testing.assert_allclose(out, [[5.0, -5.0], [4.0, -4.5]], rtol=1e-6)
+    default = RunningMeanStd((1,))
+    assert default.normalize(np.array([[1e6]]))[0, 0] == pytest.approx(10.0)
+    assert default.normalize(np.array([[-1e6]]))[0, 0] == pytest.approx(-10.0)
+
+
+def test_normalised_data_has_zero_mean_and_unit_variance():
+    rms = RunningMeanStd((3,), epsilon=1e-12)
+    x = np.concatenate(BATCHES[:2] + BATCHES[3:])  # without the outlier row: nothing clips
+    rms.update(x)
+    z = rms.normalize(x).astype(np.float64)
+    np.testing.assert_allclose(z.mean(axis=0), 0.0, atol=1e-5)
+    np.testing.assert_allclose(z.var(axis=0), 1.0, rtol=1e-5)
+
+
+def test_non_finite_rows_are_not_merged():
+    rms = RunningMeanStd((2,), epsilon=1e-12)
+    rms.update(np.array([[1.0, 2.0], [np.nan, 0.0], [3.0, np.inf], [3.0, 4.0]]))
+    np.testing.assert_allclose(rms.mean, [2.0, 3.0], atol=1e-9)
+    np.testing.assert_allclose(rms.var, [1.0, 1.0], atol=1e-9)
+    assert rms.count == pytest.approx(2.0)
