@@ -1,6 +1,9 @@
 """Vehicle parameters: airframe presets and per-drone parameter batches.
 
 A preset (`VehicleParams`) is one airframe, scalars with their unit and source on the same line.
+Every VehicleParams checks its numbers when it is made (a preset, a scaled or replaced copy, one read
+from a checkpoint or from an ONNX file's metadata): each one number, finite, positive (motor_tau
+and drag may be 0); anything else is a ValueError naming the field, its value and what was expected.
 `ParamBatch` holds the same quantities as arrays of shape (N,) so that one dynamics call steps N
 drones that may each differ (domain randomisation needs no other code path).
 
@@ -11,6 +14,7 @@ Motor numbering is PX4's quad-X order (see `MOTOR_LAYOUT` in `dynamics`): 0 fron
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -46,6 +50,36 @@ class VehicleParams:
     """N·s/m, linear translational drag coefficient (world frame); 0 disables it (seeds)."""
     gravity: float = GRAVITY
     """m/s²."""
+
+    def __post_init__(self) -> None:
+        """Every field is checked where a VehicleParams is made (a preset, a scaled copy, a vehicle read
+        from a checkpoint or an ONNX file's metadata), so that no code downstream meets a negative mass
+        or a NaN: ValueError naming the field, what it holds and what was expected. Numbers are stored
+        as Python floats (a NumPy scalar or an int is converted)."""
+        if not isinstance(self.name, str):
+            raise ValueError(f"vehicle name: expected a string, found {type(self.name).__name__}")
+        label = repr(self.name if len(self.name) <= 40 else self.name[:40] + "...")  # repr: one line
+        for f in fields(self):
+            if f.name == "name":
+                continue
+            v = getattr(self, f.name)
+            # bool is an int subclass, and numbers.Real admits NumPy's float and int scalars
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+                if isinstance(v, (list, tuple)):
+                    found = f"a sequence of {len(v)}"
+                elif isinstance(v, np.ndarray):
+                    found = f"an array of shape {v.shape}"
+                else:
+                    found = type(v).__name__
+                raise ValueError(f"vehicle {label}: {f.name}: expected one number, found {found}")
+            try:
+                v = float(v)
+            except OverflowError:  # an integer beyond the float range
+                v = math.inf
+            bound, relation = _VEHICLE_LIMITS[f.name]
+            if not (math.isfinite(v) and (v > bound if relation == "> 0" else v >= bound)):
+                raise ValueError(f"vehicle {label}: {f.name} = {v!r}: expected a finite number {relation}")
+            object.__setattr__(self, f.name, v)
 
     @property
     def weight(self) -> float:
@@ -84,6 +118,23 @@ class VehicleParams:
         if bad:
             raise ValueError(f"cannot scale {sorted(bad)}; scalable fields are {sorted(known)}")
         return replace(self, **{k: getattr(self, k) * v for k, v in scales.items()})
+
+
+_VEHICLE_LIMITS = {
+    # field: (bound, relation). Masses, lengths, inertias, coefficients and speeds are physical
+    # magnitudes; a zero time constant or drag coefficient means "none" (see the field docs).
+    "mass": (0.0, "> 0"),
+    "arm": (0.0, "> 0"),
+    "ixx": (0.0, "> 0"),
+    "iyy": (0.0, "> 0"),
+    "izz": (0.0, "> 0"),
+    "k_f": (0.0, "> 0"),
+    "k_m": (0.0, "> 0"),
+    "omega_max": (0.0, "> 0"),
+    "motor_tau": (0.0, ">= 0"),
+    "drag": (0.0, ">= 0"),
+    "gravity": (0.0, "> 0"),
+}
 
 
 # The seed vehicle (seed 001 after Pi et al. 2020): mass, arm and inertia as published.

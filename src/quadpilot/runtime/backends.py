@@ -12,25 +12,40 @@ the file's architecture metadata) and computes the same network with NumPy. `cba
 writes), compiles it once with the system C compiler and calls it through ctypes. None knows about
 safety: wrap them in `safety.SafetyMonitor`.
 
-`load_policy` checks the file's contract (`model.read_model`) and then replays the golden vectors
-stored in it; a backend that does not reproduce them within `GOLDEN_TOLERANCE` is refused.
+Rules, so that the three backends fly one function or none flies:
+- `load_policy` checks the file's contract first (`model.read_model`: every metadata value, and a
+  graph that is exactly the declared architecture, so the graph ONNX Runtime runs is the network the
+  NumPy and C backends compute from the same initializers).
+- It then replays the golden vectors stored in the file through the chosen backend; a backend that
+  does not reproduce them within `GOLDEN_TOLERANCE` is refused, and a NaN anywhere in the replay is a
+  mismatch. With the onnxruntime backend the NumPy backend replays them too (about a millisecond),
+  so a file cannot pass on the graph alone.
+- Whatever ONNX Runtime raises while creating the session or running the golden vectors becomes a
+  `ModelContractError`: a bad file never ends in a traceback.
+- `Policy.act` takes only a real-number array of the policy's shape; anything else (strings,
+  None, dicts, object or complex arrays, a wrong size) raises `ObservationShapeError`, one line.
 """
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
 
-from .model import NUM_MOTORS, ModelContractError, ModelInfo, read_model
+from .model import NUM_MOTORS, ModelContractError, ModelInfo, initializer_arrays, read_model
 
 BACKENDS = ("onnxruntime", "numpy", "c")
 GOLDEN_TOLERANCE = 1e-5
 """Max abs difference in motor command allowed on the golden vectors (the export parity bar)."""
+_FLOAT32 = np.dtype(np.float32)
+_REAL_KINDS = "fiu"
+"""NumPy dtype kinds an observation may hold: float, signed and unsigned integer (converted to
+float32). Not bool, complex, strings, bytes, objects, dates or structured records."""
 
 
 class ObservationShapeError(ValueError):
-    """An observation of the wrong size reached a policy."""
+    """An observation of the wrong size, or not an array of real numbers, reached a policy."""
 
 
 class Policy:
@@ -41,20 +56,32 @@ class Policy:
     def __init__(self, info: ModelInfo) -> None:
         self.info = info
         self.obs_dim = info.obs_dim
+        self._shape = (info.obs_dim,)
 
     def observation(self, obs) -> np.ndarray:
-        """`obs` as the (obs_dim,) array `_act` takes; accepts (obs_dim,), (1, obs_dim) or a
-        sequence, raises ObservationShapeError for anything else."""
-        if type(obs) is not np.ndarray:
-            obs = np.asarray(obs, np.float32)
-        if obs.shape != (self.obs_dim,):
-            if obs.shape != (1, self.obs_dim):
-                raise ObservationShapeError(
-                    f"observation has shape {obs.shape}; this policy ({self.info.layout.name}) expects "
-                    f"({self.obs_dim},) or (1, {self.obs_dim}) float32"
-                )
-            obs = obs.reshape(self.obs_dim)
-        return obs
+        """`obs` as the (obs_dim,) float32 array `_act` takes; accepts (obs_dim,), (1, obs_dim) or a
+        sequence of real numbers, raises ObservationShapeError for anything else."""
+        if type(obs) is np.ndarray and obs.dtype is _FLOAT32 and obs.shape == self._shape:
+            return obs  # the control loop's case: one type check, one identity check, one compare
+        return self._checked_observation(obs)
+
+    def _checked_observation(self, obs) -> np.ndarray:
+        expects = f"this policy ({self.info.layout.name}) expects ({self.obs_dim},) or (1, {self.obs_dim}) float32"
+        try:
+            a = obs if type(obs) is np.ndarray else np.asarray(obs)
+        except Exception as e:  # ragged sequences, objects whose __array__ or __len__ raise, ...
+            raise ObservationShapeError(
+                f"observation of type {type(obs).__name__} is not an array of numbers ({type(e).__name__}); {expects}"
+            ) from None
+        if a.dtype.kind not in _REAL_KINDS:
+            raise ObservationShapeError(
+                f"observation of type {type(obs).__name__} holds {a.dtype} values, not real numbers; {expects}"
+            )
+        if a.shape != self._shape:
+            if a.shape != (1, self.obs_dim):
+                raise ObservationShapeError(f"observation has shape {a.shape}; {expects}")
+            a = a.reshape(self.obs_dim)
+        return a if a.dtype is _FLOAT32 else a.astype(np.float32)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Motor commands (4,) float32 for one observation (obs_dim,) or (1, obs_dim)."""
@@ -72,8 +99,11 @@ class Policy:
         worst = 0.0
         for obs, want in zip(self.info.golden_obs, self.info.golden_action, strict=True):
             got = self.act(obs)
-            diff = float(np.max(np.abs(got - want)))
-            worst = diff if not diff <= worst else worst  # NaN sticks
+            diff = float(np.max(np.abs(got - want)))  # np.max propagates a NaN
+            if math.isnan(diff):  # a NaN command reproduces nothing: the worst mismatch, and final
+                worst = math.nan
+                break
+            worst = max(worst, diff)
         self.reset()
         return worst
 
@@ -85,15 +115,18 @@ class OnnxRuntimePolicy(Policy):
         import onnxruntime as ort
 
         super().__init__(info)
+        try:
+            self._open(info, model_bytes, ort)
+        except Exception as e:  # ORT raises its own exception types from C++ (Fail, InvalidGraph, ...)
+            raise ModelContractError(f"{info.path}: ONNX Runtime cannot load the model ({_first_line(e)})") from None
+
+    def _open(self, info: ModelInfo, model_bytes: bytes, ort) -> None:
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = 1  # batch-1 control: threads only add wake-up latency
         opts.inter_op_num_threads = 1
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         opts.log_severity_level = 3
-        try:
-            self.session = ort.InferenceSession(model_bytes, opts, providers=["CPUExecutionProvider"])
-        except Exception as e:  # ORT raises its own exception types from C++ (Fail, InvalidGraph, ...)
-            raise ModelContractError(f"{info.path}: ONNX Runtime cannot load the model ({e})") from None
+        self.session = ort.InferenceSession(model_bytes, opts, providers=["CPUExecutionProvider"])
         h = max(info.hidden, 1)
         self._obs = np.zeros((1, self.obs_dim), np.float32)
         self._out = np.zeros((1, NUM_MOTORS), np.float32)
@@ -149,7 +182,7 @@ class NumpyPolicy(Policy):
     is folded into the head's weights and bias as √(clip(u²·(a + 1), 0, 2u²)): the same function,
     three vector operations instead of five (rounding differs by ~1e-7, checked by the golden
     vectors and the export parity test). When the last layer's activation is tanh (a SAC policy's
-    action is tanh of its Gaussian mean z, issue 7) there is nothing to fold: u²·(1 + tanh z) is
+    action is tanh of its Gaussian mean z, train.sac) there is nothing to fold: u²·(1 + tanh z) is
     computed as 2u²·p/(p + q), p = e^(2·min(z, 0)), q = e^(−2·max(z, 0)), as the exported graph
     does (1 + tanh z cancels in float32 near a = −1, and the √ would magnify that), then clip and √.
 
@@ -333,6 +366,32 @@ class NumpyPolicy(Policy):
         return self._h_view.copy(), self._c.copy()
 
 
+def _first_line(e: BaseException, limit: int = 300) -> str:
+    text = str(e).strip()
+    line = text.splitlines()[0] if text else type(e).__name__
+    return line if len(line) <= limit else line[:limit] + "..."
+
+
+def _replay_golden(policy: Policy) -> float:
+    """`policy.verify_golden()`, with whatever ONNX Runtime raises on the way (a graph it can load
+    but not run) turned into a ModelContractError: at load, a file's failure is the file's."""
+    if not isinstance(policy, OnnxRuntimePolicy):
+        return policy.verify_golden()
+    try:
+        return policy.verify_golden()
+    except Exception as e:
+        raise ModelContractError(
+            f"{policy.info.path}: ONNX Runtime fails on the file's golden vectors ({_first_line(e)})"
+        ) from None
+
+
+def _refuse_golden(info: ModelInfo, backend: str, worst: float, why: str = "") -> ModelContractError:
+    return ModelContractError(
+        f"{info.path}: the {backend} backend{f' ({why})' if why else ''} does not reproduce the file's golden vectors "
+        f"(max abs difference {worst:.3g}, allowed {GOLDEN_TOLERANCE:g}); the weights or the graph were altered"
+    )
+
+
 def load_policy(path: str | os.PathLike, backend: str = "onnxruntime") -> Policy:
     """Check the file's contract, build the backend, and replay the golden vectors.
 
@@ -342,22 +401,22 @@ def load_policy(path: str | os.PathLike, backend: str = "onnxruntime") -> Policy
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     model, info = read_model(path)
+    weights = initializer_arrays(model, info.path)
     if backend == "onnxruntime":
         policy: Policy = OnnxRuntimePolicy(info, model.SerializeToString())
+    elif backend == "c":
+        from .cbackend import CPolicy
+
+        policy = CPolicy.from_model(info, weights)
     else:
-        from onnx import numpy_helper
-
-        weights = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
-        if backend == "c":
-            from .cbackend import CPolicy
-
-            policy = CPolicy.from_model(info, weights)
-        else:
-            policy = NumpyPolicy(info, weights)
-    worst = policy.verify_golden()
+        policy = NumpyPolicy(info, weights)
+    worst = _replay_golden(policy)
     if not worst <= GOLDEN_TOLERANCE:
-        raise ModelContractError(
-            f"{info.path}: the {backend} backend does not reproduce the file's golden vectors "
-            f"(max abs difference {worst:.3g}, allowed {GOLDEN_TOLERANCE:g}); the weights or the graph were altered"
-        )
+        raise _refuse_golden(info, backend, worst)
+    if backend == "onnxruntime":
+        # the graph passed the structural check; the network the NumPy and C backends compute from
+        # the same initializers must reproduce the same vectors, so that no file passes on its graph alone
+        worst = NumpyPolicy(info, weights).verify_golden()
+        if not worst <= GOLDEN_TOLERANCE:
+            raise _refuse_golden(info, "numpy", worst, "cross-checking the onnxruntime backend")
     return policy

@@ -14,21 +14,35 @@ argument (also a ValueError) report this the same way; quad-sitl prints it in on
 
 Cache: the library is built once per distinct generated source, compiler and flags, under
 `$QUADPILOT_CACHE_DIR` or `$XDG_CACHE_HOME/quadpilot` (default `~/.cache/quadpilot`), in
-`c/<key>/` with the source beside it for inspection; the build goes to a temporary name first and
-is renamed into place, so concurrent processes never load a half-written library. A cached library
-is reused only if the source stored beside it is the one just generated (and the golden vectors
-then check what it computes). If the cache cannot be written, a private temporary directory is
-used. POSIX only (a `.so` loaded with dlopen; macOS works the same way; Windows is not supported).
+`c/<key>/`, the key a SHA-256 of the generator, the generated header and source, the compiler's
+identity, the flags and the machine; the source is kept beside the library for inspection. The build
+goes to a temporary name first and is renamed into place, so concurrent processes never load a
+half-written library.
+
+A shared library runs code as it is loaded (constructors), before any golden vector is checked, so
+the cache is a trust boundary (DESIGN.md, "Trust boundaries"). Rules:
+- The cache root, `c/` and the key directory are directories (not symlinks) owned by this user and
+  writable by no one else; they are created 0700. If one of them is group- or world-writable or
+  belongs to someone else, the cache is not used: the library is built in a fresh private temporary
+  directory (`tempfile.mkdtemp`, 0700).
+- A cached library is loaded only if the SHA-256 of its bytes equals the one recorded beside it
+  (`libquadpilot_policy.so.sha256`, written by the build that made it, last) and the source beside
+  it is the one just generated; otherwise it is rebuilt. So a library planted under the key, or one
+  left half-written, is never loaded.
+If the cache cannot be written, a private temporary directory is used. POSIX only (a `.so` loaded
+with dlopen; macOS works the same way; Windows is not supported).
 """
 
 from __future__ import annotations
 
 import ctypes
 import hashlib
+import hmac
 import os
 import platform
 import shlex
 import shutil
+import stat
 import subprocess
 import tempfile
 from pathlib import Path
@@ -44,6 +58,8 @@ COMPILE_FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared")
 -march=native, so the cached library runs on any machine of the same architecture)."""
 COMPILE_TIMEOUT_S = 120.0
 LIBRARY_NAME = "libquadpilot_policy.so"
+DIGEST_NAME = LIBRARY_NAME + ".sha256"
+"""Beside the library: the SHA-256 (hex) of its bytes, recorded by the build that made it."""
 
 
 class CCompilerError(RuntimeError, ValueError):
@@ -82,6 +98,60 @@ def _compiler_identity(cmd: list[str]) -> str:
         return " ".join(cmd)
 
 
+def _private(path: Path, directory: bool = True) -> bool:
+    """`path` is a directory (or a regular file), not a symlink, owned by this user and writable by
+    no one else."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return False
+    kind_ok = stat.S_ISDIR(st.st_mode) if directory else stat.S_ISREG(st.st_mode)
+    return kind_ok and st.st_uid == os.geteuid() and not st.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
+
+
+def cache_dir(key: str) -> Path | None:
+    """The private cache directory for `key` (created 0700), or None if the cache cannot be used:
+    not writable, or some directory of it not private (see the module doc)."""
+    root = cache_root()
+    try:
+        root.parent.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    for target in (root, root / "c", root / "c" / key):
+        try:
+            target.mkdir(mode=0o700)
+        except FileExistsError:
+            pass
+        except OSError:
+            return None
+        if not _private(target):
+            return None
+    return target
+
+
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _cached(target: Path, code: cgen.CCode) -> bool:
+    """A library under `target` that this code may load: its bytes have the SHA-256 recorded beside
+    it and the source beside it is `code`'s (see the module doc)."""
+    lib, digest, source = target / LIBRARY_NAME, target / DIGEST_NAME, target / cgen.SOURCE_NAME
+    if not (_private(lib, directory=False) and _private(digest, directory=False)):
+        return False
+    try:
+        if source.read_text(encoding="ascii", errors="replace") != code.source:
+            return False
+        recorded = digest.read_text(encoding="ascii", errors="replace").strip()
+        return hmac.compare_digest(recorded, _sha256_file(lib))
+    except OSError:
+        return False
+
+
 def build_library(code: cgen.CCode, compiler: list[str] | None = None, flags=COMPILE_FLAGS) -> Path:
     """Compile `code` into a shared library (cached, see the module doc); returns its path.
 
@@ -97,16 +167,11 @@ def build_library(code: cgen.CCode, compiler: list[str] | None = None, flags=COM
             (cgen.GENERATOR, code.header, code.source, _compiler_identity(cmd), " ".join(flags), platform.machine())
         ).encode()
     ).hexdigest()[:32]
-    try:
-        root = cache_root() / "c"
-        root.mkdir(parents=True, exist_ok=True, mode=0o700)
-        target = root / key
-        target.mkdir(exist_ok=True, mode=0o700)
-    except OSError:
-        target = Path(tempfile.mkdtemp(prefix="quadpilot-c-"))
+    target = cache_dir(key)
+    if target is None:
+        target = Path(tempfile.mkdtemp(prefix="quadpilot-c-"))  # 0700, ours alone
     lib = target / LIBRARY_NAME
-    source = target / cgen.SOURCE_NAME
-    if lib.is_file() and source.is_file() and source.read_text(encoding="ascii", errors="replace") == code.source:
+    if _cached(target, code):
         return lib
     with tempfile.TemporaryDirectory(prefix=".build-", dir=target) as tmp:
         tmp = Path(tmp)
@@ -123,8 +188,12 @@ def build_library(code: cgen.CCode, compiler: list[str] | None = None, flags=COM
                 f"the C compiler failed on the generated policy.c ({' '.join(argv)}, exit {done.returncode}): "
                 + " | ".join(out[:8])
             )
-        for name in (cgen.HEADER_NAME, cgen.SOURCE_NAME, LIBRARY_NAME):
-            os.replace(tmp / name, target / name)  # the library last: a present .so has its source
+        (tmp / DIGEST_NAME).write_text(_sha256_file(tmp / LIBRARY_NAME) + "\n", encoding="ascii")
+        for name in (cgen.HEADER_NAME, cgen.SOURCE_NAME, LIBRARY_NAME, DIGEST_NAME):
+            os.chmod(tmp / name, 0o600)  # whatever the umask: only this user reads or writes them
+        # the digest last: a library is trusted only once the digest of its bytes is beside it
+        for name in (cgen.HEADER_NAME, cgen.SOURCE_NAME, LIBRARY_NAME, DIGEST_NAME):
+            os.replace(tmp / name, target / name)
     return lib
 
 

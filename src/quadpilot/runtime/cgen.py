@@ -13,7 +13,20 @@ generator the ONNX file it has just exported: there is no second path from a che
 What the C computes is what the graph computes (`export.onnx_export.DeployablePolicy` /
 `DeployableRecurrentPolicy`): optional observation normalisation clip((obs − mean)·inv_std, ±clip),
 the dense layers (or the LSTM cell, torch gate order i, f, g, o, then the dense head), the mean
-action clipped to the action range, and the motor command u_hover·√(1 + a) clipped to [0, 1].
+action clipped to the action range, and the motor command u_hover·√(1 + a) clipped to [0, 1]. For
+a tanh action head (SAC) the command is computed as the graph does, u_hover·√(2p/(p + q)) with
+p = e^(2·min(z, 0)), q = e^(−2·max(z, 0)): the same function as u_hover·√(1 + tanh z) without the
+cancellation of 1 + tanh z near a = −1, which the √ would magnify to ~1e-4.
+
+The file is untrusted (DESIGN.md, "Trust boundaries"), and generated code is compiled and loaded,
+so nothing from the file reaches the text except numbers this module formats itself (`c_float`,
+and integers it computed): no metadata string and no initializer name. The text in the header and
+the comments comes from this runtime's own tables (the observation layout of `core.observation`
+found by name, `model.ACTION_MEANING`, the generator's fixed text), and the few strings the header
+repeats from the metadata are checked again here, as `model.read_model` checks them: the task is
+one of `core.mission.TASKS`, the source SHA-256 is 64 lowercase hex digits, the vehicle name a
+plain identifier (`model.VEHICLE_NAME_PATTERN`). A ModelInfo that fails any of these (one not made
+by `read_model`) is refused with a ModelContractError.
 
 How it is written, and why:
 - Weights are `static const float` arrays holding the file's float32 values exactly: each printed
@@ -37,15 +50,25 @@ How it is written, and why:
 
 from __future__ import annotations
 
-import json
 import math
 import textwrap
 import unicodedata
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .model import NUM_MOTORS, ModelContractError, ModelInfo
+from quadpilot.core.mission import TASKS
+from quadpilot.core.observation import ObsLayout, get_layout
+
+from .model import (
+    ACTION_MEANING,
+    NUM_MOTORS,
+    SHA256_PATTERN,
+    VEHICLE_NAME_PATTERN,
+    ModelContractError,
+    ModelInfo,
+    initializer_arrays,
+)
 
 GENERATOR = "quadpilot.runtime.cgen/1"
 """Identifies the generated code's conventions; part of the runtime's compile-cache key."""
@@ -53,6 +76,7 @@ HEADER_NAME, SOURCE_NAME = "policy.h", "policy.c"
 ENTRY, STEP, RESET = "quadpilot_policy", "quadpilot_policy_step", "quadpilot_policy_reset"
 ACTIVATIONS = ("tanh", "relu", "elu")
 VALUES_PER_LINE = 6
+FLT_MAX = float(np.finfo(np.float32).max)
 UNROLL = 4
 """Inputs per pass over the accumulators in the matrix-vector loops (see `_matvec`)."""
 TANH_C = """\
@@ -83,8 +107,7 @@ class Dense:
     bias: np.ndarray
     """(out,) float32 (zeros where the exporter dropped an all-zero bias)."""
     activation: str | None
-    source: str
-    """The initializer names, for the comments."""
+    """None, tanh, relu or elu; tanh on the last layer is the SAC head (see the module doc)."""
 
 
 @dataclass(frozen=True)
@@ -106,6 +129,11 @@ class Network:
     def recurrent(self) -> bool:
         return self.lstm is not None
 
+    @property
+    def squashed(self) -> bool:
+        """The action head ends in tanh (a SAC policy): the command map is the p/q form."""
+        return self.layers[-1].activation == "tanh"
+
     def arrays(self) -> dict[str, np.ndarray]:
         """Every constant array, by the name the C source gives it."""
         out: dict[str, np.ndarray] = {}
@@ -120,10 +148,9 @@ class Network:
 
 
 def initializers(model) -> dict[str, np.ndarray]:
-    """The initializers of an `onnx.ModelProto` by name (what the architecture metadata names)."""
-    from onnx import numpy_helper
-
-    return {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
+    """The initializers of an `onnx.ModelProto` by name (what the architecture metadata names), as
+    checked float32 arrays (`model.initializer_arrays`; ModelContractError for a bad one)."""
+    return initializer_arrays(model)
 
 
 def network_from_model(info: ModelInfo, weights: dict[str, np.ndarray]) -> Network:
@@ -185,8 +212,7 @@ def network_from_model(info: ModelInfo, weights: dict[str, np.ndarray]) -> Netwo
                 raise ModelContractError(
                     f"{path}: activation {act!r} is not one the C generator writes ({', '.join(ACTIVATIONS)})"
                 )
-            source = f"{layer['weight']}, {layer['bias'] or '(all-zero bias, dropped by the exporter)'}"
-            layers.append(Dense(wt, b, act, source))
+            layers.append(Dense(wt, b, act))
             d = wt.shape[0]
         if not layers or d != NUM_MOTORS:
             raise ModelContractError(f"{path}: the last layer has {d} outputs, expected {NUM_MOTORS}")
@@ -197,9 +223,13 @@ def network_from_model(info: ModelInfo, weights: dict[str, np.ndarray]) -> Netwo
         if isinstance(e, ModelContractError):
             raise
         raise ModelContractError(f"{path}: architecture metadata incomplete ({e!r})") from None
-    for name, v in (("u_hover", u_hover), ("action_clip", a_lo), ("action_clip", a_hi), ("command_clip", c_lo)):
-        if not math.isfinite(v):
-            raise ModelContractError(f"{path}: architecture {name} is {v}, expected a finite number")
+    numbers = [("u_hover", u_hover), ("action_clip", a_lo), ("action_clip", a_hi)]
+    numbers += [("command_clip", c_lo), ("command_clip", c_hi)] + ([("normalize clip", norm[2])] if norm else [])
+    for name, v in numbers:
+        if not (math.isfinite(v) and abs(v) <= FLT_MAX):  # c_float writes every one of them as a float
+            raise ModelContractError(f"{path}: architecture {name} is {v}, expected a finite float32 number")
+    if layers[-1].activation == "tanh" and (a_lo, a_hi) != (-1.0, 1.0):
+        raise ModelContractError(f"{path}: a tanh action head needs action_clip [-1, 1] (the graph has no clip)")
     return Network(info.obs_dim, norm, lstm, hsz, tuple(layers), u_hover, (a_lo, a_hi), (c_lo, c_hi))
 
 
@@ -325,6 +355,66 @@ def generate(info: ModelInfo, weights: dict[str, np.ndarray]) -> CCode:
     return CCode(_header(info, net), _source(info, net), net)
 
 
+@dataclass(frozen=True)
+class _Facts:
+    """What the header repeats from the metadata, as text this module vouches for (module doc)."""
+
+    layout: ObsLayout
+    """This runtime's ObsLayout of that name (core.observation), not the file's description."""
+    task: str
+    source_sha256: str
+    training_steps: int
+    vehicle: str
+    control_period_s: float
+    max_distance_m: float
+    max_tilt_deg: float
+
+
+def _facts(info: ModelInfo) -> _Facts:
+    """The metadata facts the header states, each checked again (module doc): numbers finite, the
+    layout ours, the strings from a fixed set or matching a strict pattern. Raises ModelContractError."""
+
+    def refuse(what: str) -> ModelContractError:
+        return ModelContractError(f"{info.path}: {what}; generated C takes no text from a file")
+
+    try:
+        layout = get_layout(info.layout.name)
+    except (ValueError, AttributeError, TypeError):
+        raise refuse("the observation layout is not one this runtime knows") from None
+    if layout != info.layout:
+        raise refuse(f"the observation layout differs from this runtime's {layout.name}")
+    if info.task not in TASKS:
+        raise refuse(f"the task is not one of {', '.join(TASKS)}")
+    sha = info.source_sha256
+    if not (isinstance(sha, str) and SHA256_PATTERN.fullmatch(sha)):
+        raise refuse("the source SHA-256 is not 64 lowercase hex digits")
+    if info.action_meaning != ACTION_MEANING:
+        raise refuse("the action meaning is not the schema's")
+    steps = info.training_steps
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise refuse("the training step count is not a count")
+    vehicle = info.vehicle
+    if not (isinstance(vehicle.name, str) and VEHICLE_NAME_PATTERN.fullmatch(vehicle.name)):
+        raise refuse("the vehicle name is not a plain identifier")
+    values = {f.name: float(getattr(vehicle, f.name)) for f in fields(vehicle) if f.name != "name"}
+    numbers = [*values.values(), float(info.control_period_s)]
+    numbers += [float(info.envelope["max_distance_m"]), float(info.envelope["max_tilt_deg"])]
+    if not all(math.isfinite(v) and abs(v) <= FLT_MAX for v in numbers) or not numbers[-3] > 0:
+        raise refuse("a vehicle, control period or envelope number is not finite")
+    # the field names are VehicleParams' own; a float's repr is digits, '.', 'e', '+' and '-'
+    text = ", ".join([f'"name": "{vehicle.name}"', *(f'"{k}": {v!r}' for k, v in values.items())])
+    return _Facts(
+        layout=layout,
+        task=TASKS[TASKS.index(info.task)],
+        source_sha256=sha,
+        training_steps=int(steps),
+        vehicle="{" + text + "}",
+        control_period_s=numbers[-3],
+        max_distance_m=numbers[-2],
+        max_tilt_deg=numbers[-1],
+    )
+
+
 def _network_summary(net: Network) -> str:
     parts = ["obs"]
     if net.norm is not None:
@@ -334,23 +424,26 @@ def _network_summary(net: Network) -> str:
     for layer in net.layers:
         parts.append(f"{layer.weight.shape[0]}{' ' + layer.activation if layer.activation else ''}")
     lo, hi = net.action_clip
-    parts.append(f"clip [{lo:g}, {hi:g}]")
-    parts.append(f"u_hover*sqrt(1 + a), u_hover = {net.u_hover:.6g}")
+    if net.squashed:
+        parts.append(f"u_hover*sqrt(1 + a) as u_hover*sqrt(2p/(p + q)), u_hover = {net.u_hover:.6g}")
+    else:
+        parts.append(f"clip [{lo:g}, {hi:g}]")
+        parts.append(f"u_hover*sqrt(1 + a), u_hover = {net.u_hover:.6g}")
     parts.append(f"clip [{net.command_clip[0]:g}, {net.command_clip[1]:g}]")
     return " -> ".join(parts)
 
 
 def _header(info: ModelInfo, net: Network) -> str:
-    layout = info.layout
+    facts = _facts(info)
+    layout = facts.layout
     stack = _stack_bytes(net)
     rows = []
     for f, sl in zip(layout.fields, layout.slices().values(), strict=True):
         idx = f"[{sl.start}..{sl.stop - 1}]" if f.size > 1 else f"[{sl.start}]"
         rows.append(f" *   {idx:9s} {f.name:11s} {ascii_text(f.unit):6s} {ascii_text(f.meaning)}")
-    vehicle = json.dumps({k: v for k, v in info.vehicle.__dict__.items()}, separators=(", ", ": "))
     libm = _libm(net)
     output = (
-        f"Output: float motors[QP_NUM_MOTORS], {ascii_text(info.action_meaning)}: the values PX4's "
+        f"Output: float motors[QP_NUM_MOTORS], {ascii_text(ACTION_MEANING)}: the values PX4's "
         "HIL_ACTUATOR_CONTROLS carries in controls[0..3]."
     )
     if net.recurrent:
@@ -382,10 +475,10 @@ void {ENTRY}(const float obs[QP_OBS_DIM], float motors[QP_NUM_MOTORS]);"""
 /* {HEADER_NAME}: a quadpilot policy as dependency-free C99 (libm only), generated by {GENERATOR}
  * (quad-export --format c, or the runtime's c backend). Do not edit; regenerate from the checkpoint.
  *
- * Source checkpoint SHA-256: {info.source_sha256}
- * Task: {ascii_text(info.task)}; training steps: {info.training_steps}
- * {_wrap("Vehicle: " + ascii_text(vehicle))}
- * Control period: {info.control_period_s:g} s ({1.0 / info.control_period_s:g} Hz): one call per control step.
+ * Source checkpoint SHA-256: {facts.source_sha256}
+ * Task: {facts.task}; training steps: {facts.training_steps:d}
+ * {_wrap("Vehicle: " + facts.vehicle)}
+ * Control period: {facts.control_period_s:g} s ({1.0 / facts.control_period_s:g} Hz): one call per control step.
  * Network: {_network_summary(net)}
  *
  * Usage:
@@ -415,15 +508,15 @@ void {ENTRY}(const float obs[QP_OBS_DIM], float motors[QP_NUM_MOTORS]);"""
 #ifndef QUADPILOT_POLICY_H
 #define QUADPILOT_POLICY_H
 
-#define QP_OBS_DIM {info.obs_dim}
+#define QP_OBS_DIM {layout.dim}
 #define QP_NUM_MOTORS {NUM_MOTORS}
 #define QP_RECURRENT {int(net.recurrent)}
-{state_macro}#define QP_CONTROL_PERIOD_S {c_float(info.control_period_s)}
-#define QP_MAX_DISTANCE_M {c_float(info.envelope["max_distance_m"])}
-#define QP_MAX_TILT_DEG {c_float(info.envelope["max_tilt_deg"])}
+{state_macro}#define QP_CONTROL_PERIOD_S {c_float(facts.control_period_s)}
+#define QP_MAX_DISTANCE_M {c_float(facts.max_distance_m)}
+#define QP_MAX_TILT_DEG {c_float(facts.max_tilt_deg)}
 #define QP_OBS_LAYOUT "{layout.name}"
-#define QP_TASK "{ascii_text(info.task)}"
-#define QP_SOURCE_SHA256 "{info.source_sha256}"
+#define QP_TASK "{facts.task}"
+#define QP_SOURCE_SHA256 "{facts.source_sha256}"
 
 /* First index of each observation field (see the table above). */
 {offsets}
@@ -444,13 +537,14 @@ extern "C" {{
 
 
 def _uses_tanh(net: Network) -> bool:
-    return net.recurrent or any(layer.activation == "tanh" for layer in net.layers)
+    """Whether the code calls qp_tanh (a tanh head is computed with expf, see the module doc)."""
+    return net.recurrent or any(layer.activation == "tanh" for layer in net.layers[:-1])
 
 
 def _libm(net: Network) -> list[str]:
     """The libm functions the generated code calls (with the default, expf-based tanh)."""
     names = {"sqrtf"}
-    if _uses_tanh(net):
+    if _uses_tanh(net) or net.squashed:
         names.add("expf")
     if any(layer.activation == "elu" for layer in net.layers):
         names.add("expm1f")
@@ -514,10 +608,12 @@ def _matvec(out: str, n_out: int, bias: list[str], rows: list[tuple[str, str, in
     return lines
 
 
-def _dense(k: int, layer: Dense, inp: str, out: str) -> list[str]:
+def _dense(k: int, layer: Dense, inp: str, out: str, head: bool = False) -> list[str]:
+    """One dense layer; `head`: a tanh action head, whose tanh the command map computes (module doc)."""
     n_out, n_in = layer.weight.shape
-    act = layer.activation
-    lines = [f"    /* layer {k}: {n_in} -> {n_out}{', ' + act if act else ''} */"]
+    act = None if head else layer.activation
+    note = ", tanh in the command map below" if head else (", " + act if act else "")
+    lines = [f"    /* layer {k}: {n_in} -> {n_out}{note} */"]
     lines += _matvec(out, n_out, [f"qp_b{k}[j]"], [(inp, f"qp_w{k}", n_in)], UNROLL)
     if act == "tanh":
         lines.append(f"    for (j = 0; j < {n_out}; ++j) {out}[j] = qp_tanh({out}[j]);")
@@ -531,23 +627,23 @@ def _dense(k: int, layer: Dense, inp: str, out: str) -> list[str]:
 def _source(info: ModelInfo, net: Network) -> str:
     d = net.obs_dim
     arrays = []
+    facts = _facts(info)
+    # comments name the arrays by their role and this code's own names, never by the file's
+    # initializer names (text from the file; see the module doc)
     if net.norm is not None:
-        spec = info.architecture["normalize"]
-        arrays.append(_c_array("qp_obs_mean", net.norm[0], f"observation mean ({spec['mean']})"))
-        arrays.append(_c_array("qp_obs_inv_std", net.norm[1], f"1/std of the observation ({spec['inv_std']})"))
+        arrays.append(_c_array("qp_obs_mean", net.norm[0], "observation mean"))
+        arrays.append(_c_array("qp_obs_inv_std", net.norm[1], "1/std of the observation"))
     if net.lstm is not None:
         w_ih, w_hh, b_ih, b_hh = net.lstm
-        spec = info.architecture["lstm"]
-        h4 = 4 * net.hidden
         arrays += [
-            _c_array("qp_lstm_w_ih", w_ih.T, f"{spec['weight_ih']} transposed: [input][gate], gates i, f, g, o"),
-            _c_array("qp_lstm_w_hh", w_hh.T, f"{spec['weight_hh']} transposed: [h][gate], gates i, f, g, o"),
-            _c_array("qp_lstm_b_ih", b_ih, f"{spec['bias_ih'] or f'zeros ({h4})'}"),
-            _c_array("qp_lstm_b_hh", b_hh, f"{spec['bias_hh'] or f'zeros ({h4})'}"),
+            _c_array("qp_lstm_w_ih", w_ih.T, "LSTM input weights transposed: [input][gate], gates i, f, g, o"),
+            _c_array("qp_lstm_w_hh", w_hh.T, "LSTM recurrent weights transposed: [h][gate], gates i, f, g, o"),
+            _c_array("qp_lstm_b_ih", b_ih, "LSTM input bias (zeros where the exporter dropped an all-zero one)"),
+            _c_array("qp_lstm_b_hh", b_hh, "LSTM recurrent bias (zeros where the exporter dropped an all-zero one)"),
         ]
     for k, layer in enumerate(net.layers):
-        arrays.append(_c_array(f"qp_w{k}", layer.weight.T, f"layer {k} ({layer.source}): weight transposed, [in][out]"))
-        arrays.append(_c_array(f"qp_b{k}", layer.bias, f"layer {k}: bias"))
+        arrays.append(_c_array(f"qp_w{k}", layer.weight.T, f"layer {k}: weight transposed, [in][out]"))
+        arrays.append(_c_array(f"qp_b{k}", layer.bias, f"layer {k}: bias (zeros where the exporter dropped it)"))
     lo, hi = net.action_clip
     c_lo, c_hi = net.command_clip
     consts = [
@@ -555,6 +651,8 @@ def _source(info: ModelInfo, net: Network) -> str:
         f"static const float qp_action_lo = {c_float(lo)}, qp_action_hi = {c_float(hi)};",
         f"static const float qp_command_lo = {c_float(c_lo)}, qp_command_hi = {c_float(c_hi)};",
     ]
+    if net.squashed:  # tanh never leaves [-1, 1], the only action clip a tanh head may declare
+        del consts[1]
     if net.norm is not None:
         consts.append(f"static const float qp_obs_clip = {c_float(net.norm[2])};")
 
@@ -601,16 +699,31 @@ def _source(info: ModelInfo, net: Network) -> str:
         ]
         x = "h"
     for k, layer in enumerate(net.layers):
-        body += _dense(k, layer, x, names[k])
+        body += _dense(k, layer, x, names[k], head=net.squashed and k == len(net.layers) - 1)
         x = names[k]
-    body += [
-        "    /* mean action -> motor command (core.dynamics.action_to_command) */",
-        f"    for (j = 0; j < {NUM_MOTORS}; ++j) {{",
-        f"        const float a = {_clamp(f'{x}[j]', 'qp_action_lo', 'qp_action_hi')};",
-        "        const float m = qp_u_hover * sqrtf(1.0f + a);",
-        f"        motors[j] = {_clamp('m', 'qp_command_lo', 'qp_command_hi')};",
-        "    }",
-    ]
+    if net.squashed:
+        # the graph's form (export.onnx_export.DeployablePolicy): the min and max are comparisons
+        # that pass a NaN through, as the graph's Clip does
+        body += [
+            "    /* tanh head -> motor command: u_hover*sqrt(1 + tanh z) = u_hover*sqrt(2p/(p + q)),",
+            "     * p = e^(2 min(z, 0)), q = e^(-2 max(z, 0)): no cancellation of 1 + tanh z near -1 */",
+            f"    for (j = 0; j < {NUM_MOTORS}; ++j) {{",
+            f"        const float z = {x}[j];",
+            "        const float p = expf((z > 0.0f ? 0.0f : z) * 2.0f);",
+            "        const float q = expf((z < 0.0f ? 0.0f : z) * -2.0f);",
+            "        const float m = sqrtf(p * 2.0f / (p + q)) * qp_u_hover;",
+            f"        motors[j] = {_clamp('m', 'qp_command_lo', 'qp_command_hi')};",
+            "    }",
+        ]
+    else:
+        body += [
+            "    /* mean action -> motor command (core.dynamics.action_to_command) */",
+            f"    for (j = 0; j < {NUM_MOTORS}; ++j) {{",
+            f"        const float a = {_clamp(f'{x}[j]', 'qp_action_lo', 'qp_action_hi')};",
+            "        const float m = qp_u_hover * sqrtf(1.0f + a);",
+            f"        motors[j] = {_clamp('m', 'qp_command_lo', 'qp_command_hi')};",
+            "    }",
+        ]
     if net.recurrent:
         signature = (
             f"void {STEP}(const float obs[restrict QP_OBS_DIM], float h[restrict QP_HIDDEN], "
@@ -637,7 +750,7 @@ def _source(info: ModelInfo, net: Network) -> str:
         helpers += [*SIGMOID_C.splitlines(), ""]
     lines = [
         f"/* {SOURCE_NAME}: generated by {GENERATOR} from the policy exported from the checkpoint with SHA-256",
-        f" * {info.source_sha256}. Do not edit. The interface and the conventions are in {HEADER_NAME}. */",
+        f" * {facts.source_sha256}. Do not edit. The interface and the conventions are in {HEADER_NAME}. */",
         f'#include "{HEADER_NAME}"',
         "",
         "#include <math.h>",
@@ -747,10 +860,12 @@ def operation_count(net: Network) -> dict[str, int]:
 
     mac: multiply-accumulates (bias included as the first add); tanh: `qp_tanh` calls (one expf
     and one division each); expf: the LSTM's sigmoids (each one expf, one add and one division,
-    the divisions counted in `div`); expm1f: ELU; sqrtf: the motor map; other: adds, multiplies
-    and compares outside the matrix products; weights: float constants read (each once)."""
+    the divisions counted in `div`) and a tanh head's p and q; expm1f: ELU; sqrtf: the motor map;
+    other: adds, multiplies and compares outside the matrix products; weights: float constants read
+    (each once)."""
     mac = sum(layer.weight.size for layer in net.layers)
-    tanh = sum(layer.weight.shape[0] for layer in net.layers if layer.activation == "tanh")
+    hidden_layers = net.layers[:-1] if net.squashed else net.layers
+    tanh = sum(layer.weight.shape[0] for layer in hidden_layers if layer.activation == "tanh")
     expm1 = sum(layer.weight.shape[0] for layer in net.layers if layer.activation == "elu")
     other = sum(layer.weight.shape[0] for layer in net.layers)  # the bias add
     exp = div = 0
@@ -764,6 +879,11 @@ def operation_count(net: Network) -> dict[str, int]:
         div += 3 * hs
         tanh += 2 * hs  # the cell candidate and tanh(c)
         other += 3 * hs + 3 * hs  # 1 + e^-z; c = f*c + i*g (two multiplies, one add) and h = o*tanh(c)
+    if net.squashed:  # per motor: p and q (two expf), 2p/(p + q), one clamp fewer
+        exp += 2 * NUM_MOTORS
+        div += NUM_MOTORS
+        other += NUM_MOTORS * 6  # min, max, two multiplies by +/-2, 2p and p + q
+        other -= NUM_MOTORS * 3  # no action clamp and no 1 + a
     other += NUM_MOTORS * 6  # two clamps (four compares), 1 + a, the multiply by u_hover
     weights = sum(a.size for a in net.arrays().values())
     return {
