@@ -33,16 +33,31 @@ ISA_P0_PA = 101_325.0  # Pa, sea-level pressure
 ISA_T0_K = 288.15  # K, sea-level temperature
 ISA_LAPSE_K_PER_M = 0.0065  # K/m, temperature lapse rate
 ISA_EXPONENT = 5.25588  # g0·M/(R·L), dimensionless
+ISA_MIN_ALT_M = -2_000.0
+"""m, lowest altitude of the ISA tables (ISO 2533 starts them at −2 km geopotential)."""
+ISA_TROPOPAUSE_M = 11_000.0
+"""m, top of the troposphere layer, where the lapse-rate formula ends (ISO 2533)."""
+
+
+def _isa_altitude(alt_msl_m: float) -> float:
+    """The altitude clipped to the troposphere layer the formulas hold in. Beyond it the barometer
+    reads the layer's edge, as a saturated sensor would: no multirotor of ours gets there except by
+    a runaway climb or fall, and the unclipped formula is no atmosphere there (above ~44 km its base
+    turns negative and the pressure complex)."""
+    return min(max(float(alt_msl_m), ISA_MIN_ALT_M), ISA_TROPOPAUSE_M)
 
 
 def isa_pressure_hpa(alt_msl_m: float) -> float:
-    """Static pressure in hPa at an altitude above mean sea level (ISA troposphere, < 11 km)."""
-    return ISA_P0_PA * (1.0 - ISA_LAPSE_K_PER_M * alt_msl_m / ISA_T0_K) ** ISA_EXPONENT / 100.0
+    """Static pressure in hPa at an altitude above mean sea level (ISA troposphere; altitudes
+    outside −2 km … 11 km read as the nearest edge)."""
+    alt = _isa_altitude(alt_msl_m)
+    return ISA_P0_PA * (1.0 - ISA_LAPSE_K_PER_M * alt / ISA_T0_K) ** ISA_EXPONENT / 100.0
 
 
 def isa_temperature_c(alt_msl_m: float) -> float:
-    """Air temperature in °C at an altitude above mean sea level (ISA troposphere)."""
-    return ISA_T0_K - ISA_LAPSE_K_PER_M * alt_msl_m - 273.15
+    """Air temperature in °C at an altitude above mean sea level (ISA troposphere, clipped as
+    `isa_pressure_hpa`)."""
+    return ISA_T0_K - ISA_LAPSE_K_PER_M * _isa_altitude(alt_msl_m) - 273.15
 
 
 def world_to_body(state: np.ndarray, v_world) -> np.ndarray:

@@ -13,13 +13,21 @@ connection. Each step it sends, in this order:
 
 and then, in lockstep, waits for exactly one HIL_ACTUATOR_CONTROLS, applies it and advances the
 physics by one `dt`. In realtime mode it advances on the host's monotonic clock instead, holding
-the last command like an ESC and cutting the motors when commands stop.
+the last command like an ESC and cutting the motors when valid commands stop.
 
 Commands: `controls[0..3]` is ω/ω_max per rotor in PX4 quad-X order (`link.wire`). While the
 peer is disarmed (mode bit 128 clear) the motors get 0 whatever it sends. An armed message with a
 non-finite or out-of-range (outside [0, 1]) value in controls[0..3] is dropped, counted, and the
 motors keep their previous command; in lockstep it still counts as the peer's answer for the step
-(the peer is waiting for the next HIL_SENSOR: not stepping would stall both sides).
+(the peer is waiting for the next HIL_SENSOR: not stepping would stall both sides). Only applied
+commands (armed and valid, or disarmed: motors 0) feed the ESC timeout: after `esc_timeout_s`
+without one (host clock in realtime, simulated time in lockstep) the motors are cut, so a stream of
+bad commands cannot keep the last good one alive.
+
+Every in-range command sequence keeps the simulation finite and every message encodable, however
+long it runs: the plant stays in its model's domain (`Plant`), the barometer in its atmosphere's
+(`sensors.isa_pressure_hpa`), and integer wire fields saturate at their MAVLink types' limits
+(`link.wire`).
 
 Everything else that arrives is dispatched on its type at one receive point: HEARTBEAT is counted,
 BAD_DATA (pymavlink's type for garbage and bad CRCs) and unknown message ids are dropped and counted
@@ -41,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quadpilot.core import dynamics
+from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
 from quadpilot.core.mission import TASKS, Mission, plan_episode
 from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
 from quadpilot.core.reward import RewardConfig, crashed
@@ -84,6 +93,8 @@ one. An assumed order of magnitude for a ~0.7 kg quadrotor under the linear roto
 pushes with 1 N, 15 % of the seed vehicle's weight."""
 POLL_S = 0.05
 """s, longest a wait goes without looking at `stop()`."""
+
+_HALF_PI = 0.5 * math.pi
 
 END_REASONS = ("peer_closed", "lockstep_timeout", "peer_silent", "max_steps", "stopped")
 
@@ -154,8 +165,9 @@ class SimConfig:
     """True: one physics step per HIL_ACTUATOR_CONTROLS, as fast as the peer answers. False:
     realtime, one step per dt of the host's monotonic clock, the last command held."""
     esc_timeout_s: float = 0.1
-    """s, realtime mode: with no actuator message for this long the motors are cut to 0 (an ESC's
-    signal-loss behaviour); counted in `SimStats.esc_timeouts`."""
+    """s, with no valid actuator command for this long the motors are cut to 0 (an ESC's signal-loss
+    behaviour): host clock in realtime mode, simulated time in lockstep (where only a stream of
+    dropped commands can cause it); counted in `SimStats.esc_timeouts`."""
     lockstep_timeout_s: float = 5.0
     """s, an episode ends when no actuator message has arrived for this long (lockstep never
     waits for ever; in realtime mode it ends an episode whose peer fell silent)."""
@@ -279,7 +291,17 @@ class SimConfig:
 
 class Plant:
     """One simulated vehicle: `core.dynamics.step` on a batch of one, plus the constant part of
-    the wind force. State (12,) ENU/FLU and rotor (4,) ω/ω_max, float64."""
+    the wind force. State (12,) ENU/FLU and rotor (4,) ω/ω_max, float64.
+
+    Kept inside the domain the model holds in, whatever the commands (a peer may hold any in-range
+    command for an hour): body rates are saturated at `link.wire.MAX_BODY_RATE` (counted in
+    `rate_limited_steps`), because beyond it no multirotor is flying any more and the explicit
+    integration of Euler's equation in `core.dynamics` amplifies the gyroscopic term ω × (Iω) by
+    about √(1 + (dt·ω·ΔI/I)²) per step, which overflows to Inf within a few hundred steps of a
+    tumble. Roll and pitch are kept in [−π, π] and [−π/2, π/2] (the same attitude: `core.frames`'
+    ZYX angles of its rotation matrix) so that a tumble through pitch ±90° does not wind them up.
+    Position and velocity need nothing: thrust and gravity are bounded, so they grow at most
+    linearly and quadratically in time."""
 
     def __init__(
         self,
@@ -309,11 +331,14 @@ class Plant:
         self.hover_command = float(vehicle.hover_command)
         self.state = np.zeros(dynamics.STATE_DIM)
         self.rotor = np.full(dynamics.NUM_MOTORS, self.hover_command)
+        self.rate_limited_steps = 0
+        """Steps whose body rates had to be saturated at MAX_BODY_RATE (see the class docstring)."""
 
     def reset(self, state: np.ndarray) -> None:
         """Start from `state` (12,) with the rotors at hover speed."""
         self.state = np.array(state, dtype=np.float64).reshape(dynamics.STATE_DIM)
         self.rotor = np.full(dynamics.NUM_MOTORS, self.hover_command)
+        self.rate_limited_steps = 0
         self.gust = self._rng.normal(0.0, self.gust_std, 3) if self.gust_std > 0 else np.zeros(3)
 
     @property
@@ -336,6 +361,18 @@ class Plant:
             force=force[None] if force.any() else None,
         )
         self.state, self.rotor = s[0], w[0]
+        self._keep_in_domain(self.state)
+
+    def _keep_in_domain(self, s: np.ndarray) -> None:
+        """Saturate the body rates and canonicalise roll and pitch, in place (class docstring)."""
+        roll, pitch, _, p, q, r = s[6:12].tolist()  # plain floats: comparisons cheaper than numpy's
+        lim = wire.MAX_BODY_RATE
+        if not (-lim <= p <= lim and -lim <= q <= lim and -lim <= r <= lim):
+            np.clip(s[9:12], -lim, lim, out=s[9:12])
+            self.rate_limited_steps += 1
+        if not (-math.pi <= roll <= math.pi and -_HALF_PI <= pitch <= _HALF_PI):
+            angles = rotmat_to_euler(euler_to_rotmat(s[6], s[7], s[8]))
+            s[6:9] = [float(a) for a in angles]
 
     @property
     def thrust_n(self) -> float:
@@ -370,11 +407,14 @@ class EpisodeRecord:
     commands: int = 0
     """HIL_ACTUATOR_CONTROLS messages applied (armed and valid, or disarmed: motors 0)."""
     esc_cut_silence_s: float | None = None
-    """Realtime: how long commands had been silent when the ESCs cut the motors (None: never)."""
+    """How long valid commands had been missing when the ESCs cut the motors, s (host clock in realtime,
+    simulated time in lockstep; None: never)."""
     period_jitter_ms: tuple[float, float, float] | None = None
     """Realtime: |step period − dt| in ms over the episode, (p50, p99, max)."""
     overruns: int = 0
     """Realtime: steps that started more than one dt late."""
+    rate_limited_steps: int = 0
+    """Steps whose body rates the plant had to saturate at `link.wire.MAX_BODY_RATE` (a tumble)."""
 
     def summary(self) -> str:
         dropped = sum(self.dropped.values())
@@ -405,7 +445,7 @@ class SimStats:
     """Well-formed messages the simulator has no use for, by type."""
     heartbeats: int = 0
     esc_timeouts: int = 0
-    """Realtime mode: times the motors were cut because commands stopped."""
+    """Times the motors were cut because valid commands stopped (see `SimConfig.esc_timeout_s`)."""
     overruns: int = 0
     """Realtime mode: steps that started more than one dt late (the clock was then re-synchronised)."""
     records: list[EpisodeRecord] = field(default_factory=list)
@@ -549,6 +589,7 @@ class Simulator:
             esc_cut_silence_s=ep.esc_cut_silence_s,
             period_jitter_ms=jitter,
             overruns=ep.overruns,
+            rate_limited_steps=plant.rate_limited_steps,
         )
 
     def _advance(self, link, plant: Plant, command: np.ndarray, n: int, rng, ep: _Episode) -> int:
@@ -569,6 +610,8 @@ class Simulator:
         cfg = self.cfg
         held = plant.rotor.copy()  # a bad first command keeps the start's hover speed
         n = ep.steps_done = 0
+        last_valid = 0  # step of the last applied command; the ESC timeout runs on simulated time here
+        cut = False
         while n < cfg.max_steps:
             deadline = time.monotonic() + cfg.lockstep_timeout_s
             msg = None
@@ -579,9 +622,12 @@ class Simulator:
                 if left <= 0:
                     return n, "lockstep_timeout"
                 msg = self._receive(link, min(left, POLL_S), ep)
-            command = self._command(msg, ep)
+            command = self._command(msg, ep)  # a dropped one still answers the step: the peer waits
             if command is not None:
-                held = command
+                held, last_valid, cut = command, n, False
+            elif not cut and (n - last_valid) * cfg.dt > cfg.esc_timeout_s:
+                cut, held = True, np.zeros(dynamics.NUM_MOTORS)
+                self._esc_cut(ep, (n - last_valid) * cfg.dt)
             n = self._advance(link, plant, held, n, rng, ep)
         return n, "max_steps"
 
@@ -589,9 +635,9 @@ class Simulator:
         cfg = self.cfg
         held = plant.rotor.copy()  # the vehicle starts flying at hover until the first command
         n = ep.steps_done = 0
-        last_command = time.monotonic()
+        last_message = last_valid = time.monotonic()
         cut = False
-        tick = last_command + cfg.dt
+        tick = last_message + cfg.dt
         while n < cfg.max_steps:
             while True:  # take messages until this step's deadline
                 if self._stop.is_set():
@@ -601,21 +647,17 @@ class Simulator:
                     break
                 msg = self._receive(link, min(left, POLL_S), ep)
                 if msg is not None:
-                    last_command, cut = time.monotonic(), False
+                    last_message = time.monotonic()
                     command = self._command(msg, ep)
-                    if command is not None:
-                        held = command
+                    if command is not None:  # only an applied command feeds the ESC timeout
+                        held, last_valid, cut = command, last_message, False
             now = time.monotonic()
-            silent = now - last_command
-            if silent > cfg.lockstep_timeout_s:
+            if now - last_message > cfg.lockstep_timeout_s:
                 return n, "peer_silent"
+            silent = now - last_valid
             if not cut and silent > cfg.esc_timeout_s:
                 cut, held = True, np.zeros(dynamics.NUM_MOTORS)
-                ep.esc_timeouts += 1
-                if ep.esc_cut_silence_s is None:
-                    ep.esc_cut_silence_s = silent
-                self.stats.esc_timeouts += 1
-                log.info("episode %d: no actuator message for %.3f s, motors cut", ep.index, silent)
+                self._esc_cut(ep, silent)
             ep.step_times.append(time.monotonic())
             n = self._advance(link, plant, held, n, rng, ep)
             tick += cfg.dt
@@ -624,6 +666,14 @@ class Simulator:
                 ep.overruns += 1
                 tick = time.monotonic() + cfg.dt
         return n, "max_steps"
+
+    def _esc_cut(self, ep: _Episode, silent: float) -> None:
+        """The ESCs saw no valid command for `silent` s (more than esc_timeout_s): motors cut, counted."""
+        ep.esc_timeouts += 1
+        if ep.esc_cut_silence_s is None:
+            ep.esc_cut_silence_s = silent
+        self.stats.esc_timeouts += 1
+        log.info("episode %d: no valid actuator command for %.3f s, motors cut", ep.index, silent)
 
     # --- messages --------------------------------------------------------------------------
     def _send_step(self, link, plant: Plant, n: int, rng: np.random.Generator) -> None:
@@ -845,7 +895,10 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
     p.add_argument("--episodes", type=_int_at_least(1), default=None, help="serve this many connections, then exit")
     p.add_argument("--gps-every", type=_int_at_least(1), default=d.gps_every, help="steps between HIL_GPS messages")
     p.add_argument(
-        "--esc-timeout", type=_positive, default=d.esc_timeout_s, help="s, realtime: motors cut after this silence"
+        "--esc-timeout",
+        type=_positive,
+        default=d.esc_timeout_s,
+        help="s, motors cut after this long without a valid command",
     )
     p.add_argument(
         "--lockstep-timeout", type=_positive, default=d.lockstep_timeout_s, help="s, an episode ends after this silence"

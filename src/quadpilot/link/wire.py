@@ -28,14 +28,25 @@ a hover bar of 5 cm: no extra message is needed for precision. Local ↔ geodeti
 equirectangular approximation around the home point on a sphere of the WGS-84 mean radius (as
 PX4's `map_projection` does for short distances; at 100 m from home it differs from the
 azimuthal-equidistant projection by far less than the 1e-7° quantum).
+
+Integer fields are saturated to their MAVLink type's range in one place (`_saturating`, read from
+pymavlink's own message definitions): a long enough fall or climb reaches altitudes whose
+millimetres no int32 holds, and pymavlink refuses to pack them (struct.error), which would end the
+process that builds the message. A value pinned at its type's limit is still a message.
+
+What arrives is checked before it becomes a state (`BadState`, with a `reason` to count it by):
+non-finite values, a quaternion that is zero or not of unit length (MAVLink's attitude quaternions
+are unit quaternions; a sender normalises before it sends), and magnitudes no vehicle state can have.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
 
@@ -47,6 +58,91 @@ NUM_MOTORS = 4
 MOTOR_MAP = (0, 1, 2, 3)
 """controls[i] on the wire drives our model's rotor MOTOR_MAP[i] (identity: both are PX4 quad-X)."""
 LAT_QUANTUM_DEG = 1e-7
+MAX_BODY_RATE = 70.0
+"""rad/s, the largest body rate a state may carry: twice the full scale of a 2000 °/s MEMS gyro (the
+usual range, e.g. the ADIS16448 and BMI088 of `core.sensor_noise`). The simulator's plant is held
+below it and the node refuses a state beyond it."""
+QUATERNION_NORM_TOLERANCE = 1e-2
+"""A received attitude quaternion whose norm is further than this from 1 is not an attitude. float32
+rounding of a normalised quaternion is ~1e-7; 1 % also admits a sender that renormalises only now
+and then, and refuses garbage (and zero, which has no direction to normalise to)."""
+MAX_ESTIMATE_SPEED = 327.67
+"""m/s, the largest velocity component a state estimate may carry: what HIL_STATE_QUATERNION's int16
+cm/s fields can express."""
+MAX_ESTIMATE_DISTANCE = 2_147_483.647
+"""m, the largest position component a state estimate may carry: what HIL_STATE_QUATERNION's int32
+millimetre altitude can express."""
+
+_INT_RANGE = {
+    "int8_t": (-(2**7), 2**7 - 1),
+    "uint8_t": (0, 2**8 - 1),
+    "int16_t": (-(2**15), 2**15 - 1),
+    "uint16_t": (0, 2**16 - 1),
+    "int32_t": (-(2**31), 2**31 - 1),
+    "uint32_t": (0, 2**32 - 1),
+    "int64_t": (-(2**63), 2**63 - 1),
+    "uint64_t": (0, 2**64 - 1),
+}
+
+
+def _saturating(message_class):
+    """Decorate a `*_fields` function of `message_class`: every scalar integer field of its result is
+    saturated to the range of the field's MAVLink type, as pymavlink's message definition gives it.
+    The one place where integer wire fields are bounded."""
+    limits = tuple(
+        (name, *_INT_RANGE[kind])
+        for name, kind in zip(message_class.fieldnames, message_class.fieldtypes, strict=True)
+        if kind in _INT_RANGE
+    )
+
+    def decorate(fields_of):
+        @functools.wraps(fields_of)
+        def saturated(*args, **kwargs) -> dict:
+            out = fields_of(*args, **kwargs)
+            for name, lo, hi in limits:
+                v = out.get(name, 0)  # (an extension field left out takes pymavlink's default, 0)
+                if v < lo:
+                    out[name] = lo
+                elif v > hi:
+                    out[name] = hi
+            return out
+
+        return saturated
+
+    return decorate
+
+
+class BadState(ValueError):
+    """A received state message whose values cannot be a vehicle's state; `reason` names the check
+    (non_finite, quaternion_not_unit, out_of_range, frame), for counting drops by reason."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+def _unit_quaternion(q, what: str) -> tuple[float, float, float, float]:
+    """(w, x, y, z) normalised, or BadState: non-finite, zero, or not of unit length."""
+    w, x, y, z = (float(v) for v in q)
+    n2 = w * w + x * x + y * y + z * z
+    if not math.isfinite(n2):  # also catches a NaN or ±Inf component, and an overflowing square
+        raise BadState("non_finite", f"{what}: non-finite attitude quaternion {[w, x, y, z]}")
+    n = math.sqrt(n2)
+    if not abs(n - 1.0) <= QUATERNION_NORM_TOLERANCE:
+        raise BadState(
+            "quaternion_not_unit",
+            f"{what}: attitude quaternion of norm {n:.6g}, expected 1 ± {QUATERNION_NORM_TOLERANCE:g}",
+        )
+    return w / n, x / n, y / n, z / n
+
+
+def _check_rates(what: str, *rates: float) -> None:
+    for v in rates:
+        if not -MAX_BODY_RATE <= v <= MAX_BODY_RATE:
+            if not math.isfinite(v):
+                raise BadState("non_finite", f"{what}: non-finite body rate {list(rates)}")
+            raise BadState("out_of_range", f"{what}: body rate {v:.6g} rad/s, expected within ±{MAX_BODY_RATE:g}")
+
 
 # ENU ↔ NED swaps x and y and negates z; FLU ↔ FRD negates y and z. Both are their own inverse.
 _ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -153,8 +249,8 @@ def geodetic_to_local(lat_e7: int, lon_e7: int, alt_mm: int, home: Home) -> np.n
 
 
 def _cm(v: float) -> int:
-    """m/s → cm/s as int16, saturated (a velocity beyond ±327 m/s is not a quadrotor's)."""
-    return max(-32767, min(32767, round(v * 100.0)))
+    """m/s → cm/s (the int16 field is saturated by `_saturating`)."""
+    return round(v * 100.0)
 
 
 def _ned_frd_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
@@ -187,6 +283,7 @@ def _ned_frd_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, f
     return q[0] / n, q[1] / n, q[2] / n, q[3] / n
 
 
+@_saturating(mavlink2.MAVLink_hil_state_quaternion_message)
 def hil_state_quaternion_fields(
     state: np.ndarray, home: Home, time_usec: int, accel_flu: np.ndarray | None = None
 ) -> dict:
@@ -198,7 +295,6 @@ def hil_state_quaternion_fields(
     else:
         a0, a1, a2 = (float(v) for v in accel_flu)
         acc = (a0 / G_MG, -a1 / G_MG, -a2 / G_MG)
-    clip16 = lambda a: max(-32767, min(32767, round(a)))  # noqa: E731
     return {
         "time_usec": int(time_usec),
         "attitude_quaternion": list(_ned_frd_quaternion(roll, pitch, yaw)),
@@ -213,20 +309,23 @@ def hil_state_quaternion_fields(
         "vz": _cm(-vz),
         "ind_airspeed": 0,
         "true_airspeed": 0,
-        "xacc": clip16(acc[0]),
-        "yacc": clip16(acc[1]),
-        "zacc": clip16(acc[2]),
+        "xacc": round(acc[0]),
+        "yacc": round(acc[1]),
+        "zacc": round(acc[2]),
     }
 
 
 def state_from_hil_state_quaternion(msg, home: Home) -> np.ndarray:
     """A HIL_STATE_QUATERNION message (or any object with its fields) → 12-state ENU/FLU, SI.
+    BadState if it cannot be a state: a non-finite value, a quaternion that is not a unit one, a
+    latitude or longitude off the globe, a body rate beyond MAX_BODY_RATE.
 
     Scalar arithmetic (every step): the attitude is `rotmat_to_euler(rotmat_ned_frd_to_enu_flu(
     quaternion_to_rotmat(q)))` written out, which the tests check it against."""
-    w, x, y, z = msg.attitude_quaternion
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
+    w, x, y, z = _unit_quaternion(msg.attitude_quaternion, "HIL_STATE_QUATERNION")
+    _check_rates("HIL_STATE_QUATERNION", msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+    if not (-900_000_000 <= msg.lat <= 900_000_000 and -1_800_000_000 <= msg.lon <= 1_800_000_000):
+        raise BadState("out_of_range", f"HIL_STATE_QUATERNION: lat/lon {msg.lat}/{msg.lon} degE7 is off the globe")
     # entries of R (FRD → NED) that the ENU/FLU Euler angles need, after E·R·F (see above)
     r00, r10 = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z)
     r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
@@ -250,6 +349,7 @@ def state_from_hil_state_quaternion(msg, home: Home) -> np.ndarray:
     )
 
 
+@_saturating(mavlink2.MAVLink_hil_sensor_message)
 def hil_sensor_fields(
     time_usec: int,
     gyro_flu: np.ndarray,
@@ -286,6 +386,7 @@ def gyro_from_hil_sensor(msg) -> np.ndarray:
     return frd_to_flu(np.array([msg.xgyro, msg.ygyro, msg.zgyro], np.float64))
 
 
+@_saturating(mavlink2.MAVLink_hil_gps_message)
 def hil_gps_fields(state: np.ndarray, home: Home, time_usec: int) -> dict:
     """Keyword arguments of `mav.hil_gps_send` (3-D fix, 10 satellites, eph/epv 0.3 m)."""
     lat, lon, alt = local_to_geodetic(state[0:3], home)
@@ -299,7 +400,7 @@ def hil_gps_fields(state: np.ndarray, home: Home, time_usec: int) -> dict:
         "alt": alt,
         "eph": 30,
         "epv": 30,
-        "vel": min(65534, round(math.hypot(vn, ve) * 100.0)),
+        "vel": min(65534, round(math.hypot(vn, ve) * 100.0)),  # UINT16_MAX means unknown
         "vn": _cm(vn),
         "ve": _cm(ve),
         "vd": _cm(vd),
@@ -329,6 +430,7 @@ def _covariance(variances) -> list[float]:
     return cov
 
 
+@_saturating(mavlink2.MAVLink_odometry_message)
 def odometry_fields(state: np.ndarray, time_usec: int, pose_variance=None, velocity_variance=None) -> dict:
     """Keyword arguments of `mav.odometry_send` for a state *estimate* (12-state ENU/FLU, SI):
     position in local NED metres from home (floats: no 1 cm quantisation), attitude quaternion
@@ -361,14 +463,28 @@ def odometry_fields(state: np.ndarray, time_usec: int, pose_variance=None, veloc
 
 def state_from_odometry(msg) -> np.ndarray:
     """An ODOMETRY message in the frames `odometry_fields` writes (pose LOCAL_NED, twist BODY_FRD)
-    → 12-state ENU/FLU, SI. Raises ValueError for other frames: guessing a frame would fly the
-    vehicle on a wrong state."""
+    → 12-state ENU/FLU, SI. Raises BadState (a ValueError) for other frames (reason "frame": guessing
+    a frame would fly the vehicle on a wrong state) and for values that cannot be a state (as
+    `state_from_hil_state_quaternion`; position and velocity within MAX_ESTIMATE_DISTANCE and
+    MAX_ESTIMATE_SPEED)."""
     if msg.frame_id != ODOMETRY_FRAME or msg.child_frame_id != ODOMETRY_CHILD_FRAME:
-        raise ValueError(
+        raise BadState(
+            "frame",
             f"ODOMETRY frames {msg.frame_id}/{msg.child_frame_id}, expected {ODOMETRY_FRAME} (LOCAL_NED) / "
-            f"{ODOMETRY_CHILD_FRAME} (BODY_FRD)"
+            f"{ODOMETRY_CHILD_FRAME} (BODY_FRD)",
         )
-    rot = rotmat_ned_frd_to_enu_flu(quaternion_to_rotmat(msg.q))  # body FLU → ENU
+    q = _unit_quaternion(msg.q, "ODOMETRY")
+    _check_rates("ODOMETRY", msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+    for values, bound, unit in (
+        ((msg.x, msg.y, msg.z), MAX_ESTIMATE_DISTANCE, "m"),
+        ((msg.vx, msg.vy, msg.vz), MAX_ESTIMATE_SPEED, "m/s"),
+    ):
+        for v in values:
+            if not -bound <= v <= bound:
+                if not math.isfinite(v):
+                    raise BadState("non_finite", f"ODOMETRY: non-finite value in {list(values)}")
+                raise BadState("out_of_range", f"ODOMETRY: {v:.6g} {unit}, expected within ±{bound:g}")
+    rot = rotmat_ned_frd_to_enu_flu(quaternion_to_rotmat(q))  # body FLU → ENU
     roll, pitch, yaw = rotmat_to_euler(rot)
     v_world = rot @ frd_to_flu(np.array([msg.vx, msg.vy, msg.vz], np.float64))
     return np.array(
@@ -394,6 +510,7 @@ class NonFiniteCommand(ValueError):
     """A motor command that must never be transmitted (PX4 reads NaN as 'stop the motors')."""
 
 
+@_saturating(mavlink2.MAVLink_hil_actuator_controls_message)
 def actuator_controls_fields(motors: np.ndarray, time_usec: int, armed: bool, lockstep: bool) -> dict:
     """Keyword arguments of `mav.hil_actuator_controls_send` for 4 motor commands in [0, 1] (our
     rotor order). Raises NonFiniteCommand for NaN/Inf; clamps finite values to [0, 1]."""
@@ -436,6 +553,7 @@ def attitude_ned_frd(state: np.ndarray) -> tuple[float, float, float]:
     return float(roll), float(pitch), float(yaw)
 
 
+@_saturating(mavlink2.MAVLink_attitude_message)
 def attitude_fields(state: np.ndarray, time_boot_ms: int) -> dict:
     """Keyword arguments of `mav.attitude_send` (ATTITUDE: NED/FRD angles and FRD rates, rad)."""
     roll, pitch, yaw = attitude_ned_frd(state)
@@ -451,6 +569,30 @@ def attitude_fields(state: np.ndarray, time_boot_ms: int) -> dict:
     }
 
 
+@_saturating(mavlink2.MAVLink_sys_status_message)
+def sys_status_fields(sensors: int, errors: int, received: int) -> dict:
+    """Keyword arguments of `mav.sys_status_send` for a ground station: `sensors` (a
+    MAV_SYS_STATUS_SENSOR bit mask) present, enabled and healthy; no battery information (-1);
+    drop_rate_comm in c% and errors_comm from the count of messages dropped (`errors`) against those
+    used (`received`)."""
+    return {
+        "onboard_control_sensors_present": sensors,
+        "onboard_control_sensors_enabled": sensors,
+        "onboard_control_sensors_health": sensors,
+        "load": 0,
+        "voltage_battery": UINT16_UNKNOWN,
+        "current_battery": -1,
+        "battery_remaining": -1,
+        "drop_rate_comm": round(10000 * errors / max(1, errors + received)),
+        "errors_comm": errors,
+        "errors_count1": 0,
+        "errors_count2": 0,
+        "errors_count3": 0,
+        "errors_count4": 0,
+    }
+
+
+@_saturating(mavlink2.MAVLink_local_position_ned_message)
 def local_position_ned_fields(state: np.ndarray, time_boot_ms: int) -> dict:
     """Keyword arguments of `mav.local_position_ned_send` (m and m/s, local NED at home)."""
     p, v = enu_to_ned(state[0:3]), enu_to_ned(state[3:6])
@@ -465,6 +607,7 @@ def local_position_ned_fields(state: np.ndarray, time_boot_ms: int) -> dict:
     }
 
 
+@_saturating(mavlink2.MAVLink_global_position_int_message)
 def global_position_int_fields(state: np.ndarray, home: Home, time_boot_ms: int) -> dict:
     """Keyword arguments of `mav.global_position_int_send`: lat/lon degE7, alt mm MSL,
     relative_alt mm above home, vx/vy/vz cm/s NED, hdg cdeg (yaw from north, 0..35999)."""

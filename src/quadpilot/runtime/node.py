@@ -16,6 +16,19 @@ state for `link_timeout_s` (100 ms) latches a failsafe (motors off, disarmed, ST
 only a new `fly()` clears. Timestamps that go backwards, repeat or jump are dropped and counted.
 Motor commands go to the simulator's address only; optional MAVLink 2 signing (`signing_key`).
 
+Nothing that arrives can end the loop. A state that cannot be a state (`link.wire.BadState`:
+non-finite values, a zero or non-unit quaternion, a body rate or position no vehicle has) is dropped
+and counted by reason (`state_non_finite`, `state_quaternion_not_unit`, `state_out_of_range`; an
+ODOMETRY estimate likewise as `odometry_*`, and its step then flies on the ground truth, as without
+one). It is never flown on, logged, or sent to the ground station. Its step is still answered, once:
+a lockstep simulator waits for it (without it both sides stall), and an autopilot in lockstep runs
+one cycle, with one actuator output, per HIL_SENSOR whatever its estimator makes of the data. The
+answer is the safety monitor's blind command (hover thrust on every motor, no moment,
+`SafetyMonitor.blind`), not the policy on the last valid state: flying a frozen attitude was
+measured to flip the vehicle within 0.2 s (see `runtime.safety`); the monitor then hands over to
+the fallback, as for any observation it cannot trust. A dropped state does not restart the
+link-loss timer, so a stream of them ends in the same failsafe as silence ("no valid state").
+
 Telemetry for a ground station (`gcs`, UDP 127.0.0.1:14550 by default, where QGroundControl and
 MAVProxy listen): HEARTBEAT and SYS_STATUS at 1 Hz, ATTITUDE and LOCAL_POSITION_NED at
 `telemetry_hz`, GLOBAL_POSITION_INT at 5 Hz (simulated time), STATUSTEXT on failsafe and
@@ -86,6 +99,7 @@ class EpisodeLog:
 
     t: list = field(default_factory=list)
     states: list = field(default_factory=list)
+    """Ground truth per step (12-state ENU/FLU); a step whose state was dropped repeats the last valid one."""
     targets: list = field(default_factory=list)
     commands: list = field(default_factory=list)
     sources: list = field(default_factory=list)
@@ -93,6 +107,7 @@ class EpisodeLog:
     wall: list = field(default_factory=list)
     """perf_counter() at each step's HIL_SENSOR: the loop's period and jitter."""
     dropped: Counter = field(default_factory=Counter)
+    """Messages and states refused, by reason (see the module docstring)."""
     failsafe: str | None = None
     failsafe_latency_s: float | None = None
     wall_s: float = 0.0
@@ -142,8 +157,7 @@ class GroundStation:
                 | mavlink2.MAV_SYS_STATUS_SENSOR_3D_MAG
                 | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
             )
-            drop = min(10000, round(10000 * errors / max(1, errors + received)))
-            mav.sys_status_send(sensors, sensors, sensors, 0, 0, -1, -1, drop, min(errors, 65535), 0, 0, 0, 0)
+            mav.sys_status_send(**wire.sys_status_fields(sensors, errors, received))
             self.sent += 2
             self.link.recv(0.0)  # drain whatever a GCS sent us (heartbeats); we take no commands
             self.link._pending.clear()
@@ -200,8 +214,10 @@ class Node:
         start = time.monotonic()
         last_state_at = start
         last_heartbeat = -math.inf
-        state: np.ndarray | None = None
+        state: np.ndarray | None = None  # the last state that passed wire's checks
         state_time = -1
+        bad_time = -1  # time_usec of the last state dropped by those checks: its step is flown blind
+        bad_at = -math.inf
         estimate: np.ndarray | None = None  # ODOMETRY: the estimator's state, if the simulator sends one
         estimate_time = -1
         last_sensor_time = -1
@@ -221,10 +237,16 @@ class Node:
                     link.flush()
                     last_heartbeat = now
                 wait = cfg.link_timeout_s - (now - last_state_at)
-                msg = link.recv(wait) if wait > 0 else None
+                try:
+                    msg = link.recv(wait) if wait > 0 else None
+                except transport.PeerClosed:
+                    raise
+                except Exception:  # pymavlink reports garbage as BAD_DATA; anything else it raises is too
+                    log.dropped["parser_error"] += 1
+                    continue
                 if msg is None:
                     if time.monotonic() - last_state_at >= cfg.link_timeout_s:
-                        log.failsafe = "state stream silent"
+                        log.failsafe = "no valid state" if bad_at > last_state_at else "state stream silent"
                         log.failsafe_latency_s = time.monotonic() - last_state_at
                         self._failsafe(link, gcs, log.failsafe, state_time)
                         break
@@ -237,31 +259,49 @@ class Node:
                     if state_time >= 0 and msg.time_usec - state_time > cfg.max_time_jump_s * 1e6:
                         log.dropped["time_jump"] += 1
                         continue
-                    state = wire.state_from_hil_state_quaternion(msg, cfg.home)
+                    try:
+                        new = wire.state_from_hil_state_quaternion(msg, cfg.home)
+                    except wire.BadState as e:
+                        # never flown on, logged or sent to the ground station; its step is still
+                        # answered (see the HIL_SENSOR branch), and the link-loss timer keeps running
+                        log.dropped[f"state_{e.reason}"] += 1
+                        bad_time, bad_at = msg.time_usec, time.monotonic()
+                        continue
+                    state = new
                     state_time = msg.time_usec
                     last_state_at = time.monotonic()
                     received += 1
                 elif kind == "HIL_SENSOR":
                     t_in = time.perf_counter()
-                    if state is None or msg.time_usec != state_time or msg.time_usec == last_sensor_time:
+                    t_us = msg.time_usec
+                    blind = t_us == bad_time and bad_time > state_time  # its step's state was dropped
+                    # a step is answered once, and never after a later one
+                    if t_us <= last_sensor_time or (t_us != state_time and not blind):
                         log.dropped["sensor_without_state"] += 1
                         continue
-                    last_sensor_time = msg.time_usec
+                    last_sensor_time = t_us
                     received += 1
-                    s = (estimate if estimate_time == msg.time_usec else state).copy()
-                    s[9:12] = wire.gyro_from_hil_sensor(msg)
                     k = log.steps
                     target, target_vel = (fixed, None) if targets is None else targets(k)
-                    obs = build_observation(s[None], target, target_vel)[0]
-                    cmd = monitor.act(obs)
-                    mav.hil_actuator_controls_send(
-                        **wire.actuator_controls_fields(cmd, msg.time_usec, True, cfg.lockstep)
-                    )
+                    fresh = t_us == state_time
+                    if fresh:
+                        s = (estimate if estimate_time == t_us else state).copy()
+                        s[9:12] = wire.gyro_from_hil_sensor(msg)
+                        obs = build_observation(s[None], target, target_vel)[0]
+                        cmd = monitor.act(obs)
+                    else:
+                        # this step's state was dropped: the step is still answered, once (a lockstep
+                        # peer waits for it), with the monitor's blind hover command, as for any
+                        # observation it cannot trust
+                        cmd = monitor.blind("state_dropped")
+                    mav.hil_actuator_controls_send(**wire.actuator_controls_fields(cmd, t_us, True, cfg.lockstep))
                     link.flush()
+                    if state is None:  # flown blind before any valid state: nothing to log it against
+                        continue
                     log.latency_s.append(time.perf_counter() - t_in)
                     log.wall.append(t_in)
-                    log.t.append(msg.time_usec * 1e-6)
-                    log.states.append(state)
+                    log.t.append(t_us * 1e-6)
+                    log.states.append(state)  # on a blind step the last valid state, what the node knew
                     log.targets.append(target)
                     log.commands.append(cmd)
                     log.sources.append(monitor.source)
@@ -272,12 +312,13 @@ class Node:
                                 mavlink2.MAV_SEVERITY_WARNING,
                                 f"safety: {source} flying ({', '.join(sorted(monitor.events)) or 'policy'})",
                             )
-                        gcs.step(k, state, msg.time_usec, True, sum(log.dropped.values()), received)
+                        if fresh:  # telemetry only ever from a state that passed the checks, and new
+                            gcs.step(k, state, t_us, True, sum(log.dropped.values()), received)
                 elif kind == "ODOMETRY":
                     try:
                         estimate, estimate_time = wire.state_from_odometry(msg), msg.time_usec
-                    except ValueError:
-                        log.dropped["odometry_frame"] += 1
+                    except wire.BadState as e:  # as no estimate: the step flies on the ground truth
+                        log.dropped[f"odometry_{e.reason}"] += 1
                 elif kind == "BAD_DATA":
                     log.dropped[transport.bad_data_reason(msg)] += 1
                 elif kind.startswith("UNKNOWN_"):
@@ -323,9 +364,11 @@ class Node:
 
 def episode_summary(log: EpisodeLog, control_period_s: float, task: str = "hover") -> dict:
     """Success and errors of one flight with the project's one definition (`core.mission.judge`,
-    the same as the training evaluation's); a failsafe is never a success."""
+    the same as the training evaluation's); a failsafe is never a success. `dropped`: what the
+    node refused, by reason (EpisodeLog.dropped)."""
     from quadpilot.core.mission import judge
 
     out = judge(task, np.asarray(log.states), np.asarray(log.targets), control_period_s)
     out["success"] = bool(out["success"] and log.failsafe is None)
+    out["dropped"] = dict(log.dropped)  # packets and states refused, by reason
     return out

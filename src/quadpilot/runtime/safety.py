@@ -8,11 +8,14 @@ after, and anything outside what the policy was trained for goes to the classica
 Per call, in order:
 
 1. Observation: every value finite and within a physically possible magnitude for its field
-   (`ObservationLimits`). +Inf passed to the network goes through tanh to a saturated, full-thrust
-   command without any error, so this is checked first. A bad observation is never given to the
-   policy, and the step is flown blind at hover thrust (equal motors: no moment). Not the fallback
-   on the last good observation: it would correct a frozen attitude error open loop, measured to
-   flip the vehicle within a 0.2 s dropout. From the next good observation the fallback flies.
+   (`ObservationLimits`), and the attitude block a rotation matrix (columns of unit length and
+   orthogonal, determinant +1, to within `ObservationLimits.rot_orthonormal`; entries in [−1, 1]
+   alone admit a matrix of all 0.5, or a reflection). +Inf passed to the network goes through tanh
+   to a saturated, full-thrust command without any error, so this is checked first. A bad
+   observation is never given to the policy, and the step is flown blind at hover thrust (equal
+   motors: no moment; `blind`). Not the fallback on the last good observation: it would correct a
+   frozen attitude error open loop, measured to flip the vehicle within a 0.2 s dropout. From the
+   next good observation the fallback flies.
 2. Envelope: distance to the target and roll/pitch within what the file's metadata says the
    policy was trained in (training episodes ended beyond them, so the policy never learned to act
    there). Outside it, the fallback flies.
@@ -47,6 +50,11 @@ class ObservationLimits:
     """m/s. Well beyond any small multirotor."""
     rot: float = 1.0 + 1e-3
     """Rotation-matrix entries lie in [−1, 1]; the margin allows float32 rounding."""
+    rot_orthonormal: float = 1e-3
+    """Largest deviation of the attitude block from a rotation: the sum of the first two columns'
+    |squared length − 1|, of |their dot product|, and of the third column's components' distance
+    from the cross product of the first two (which also makes the determinant +1, not −1). float32
+    rounding of a rotation is ~1e-7."""
     rates: float = 70.0
     """rad/s, twice a 2000 °/s gyro's full scale (the usual MEMS range)."""
     target_vel: float = 100.0
@@ -76,6 +84,8 @@ class SafetyMonitor:
         sl = info.layout.slices()
         self._pos = sl["pos_error"].start
         rot = sl["rot"].start
+        self._rot = slice(rot, rot + 9)
+        self._rot_tol = float(self.limits.rot_orthonormal)
         self._r31, self._r32, self._r33 = rot + 6, rot + 7, rot + 8  # row-major R, third row
         self._max_dist_sq = float(info.envelope["max_distance_m"]) ** 2
         max_tilt = math.radians(float(info.envelope["max_tilt_deg"]))  # in (0°, 90°): read_model checks
@@ -111,6 +121,30 @@ class SafetyMonitor:
         r32, r33 = vals[self._r32], vals[self._r33]
         return r33 < 0.0 or r33 * r33 < self._cos2_max_tilt * (r32 * r32 + r33 * r33)
 
+    def _not_a_rotation(self, vals: list) -> bool:
+        """The observation's attitude block (row-major R) is no rotation within `rot_orthonormal`.
+        Scalar arithmetic on plain floats, one sum and one comparison: this runs every call (see
+        the benchmarks)."""
+        a, b, c, d, e, f, g, h, i = vals[self._rot]  # columns (a, d, g), (b, e, h), (c, f, i)
+        deviation = (
+            abs(a * a + d * d + g * g - 1.0)  # first two columns of unit length
+            + abs(b * b + e * e + h * h - 1.0)
+            + abs(a * b + d * e + g * h)  # and orthogonal
+            + abs(d * h - g * e - c)  # third column = first × second: right-handed, determinant +1
+            + abs(g * b - a * h - f)
+            + abs(a * e - d * b - i)
+        )
+        return not deviation <= self._rot_tol  # True for NaN too
+
+    def blind(self, reason: str) -> np.ndarray:
+        """The command for a step with nothing trustworthy to fly on (a bad observation, or a state
+        the node had to drop): hover thrust on every motor, no moment. Counted under `reason` and
+        in `blind_steps`; hands over to the fallback (latched) like every bad observation."""
+        self._hand_over(reason)
+        self.events["blind_steps"] += 1
+        self.source = "fallback"
+        return self._hover.copy()
+
     def _hand_over(self, reason: str) -> None:
         self.events[reason] += 1
         if not self._latched:
@@ -133,10 +167,9 @@ class SafetyMonitor:
         # written out inline: this runs at the control rate and every call costs (see benchmarks)
         for v, b in zip(vals, self._bound, strict=False):  # lengths equal: checked above
             if not -b <= v <= b:  # also False for NaN
-                self._hand_over("obs_out_of_range" if math.isfinite(v) else "obs_nonfinite")
-                self.events["blind_steps"] += 1
-                self.source = "fallback"
-                return self._hover.copy()
+                return self.blind("obs_out_of_range" if math.isfinite(v) else "obs_nonfinite")
+        if self._not_a_rotation(vals):
+            return self.blind("obs_not_rotation")
         if self._latched:
             return self._fly_fallback(obs)
         if self._outside_envelope(vals):
