@@ -3,6 +3,6 @@
 
 import sys
 
-from .sim import main_sim_only
+from .cli import main_sim_only
 
 sys.exit(main_sim_only(sys.argv[1:]))

@@ -1,5 +1,6 @@
 """Sensor models of the simulator: IMU, magnetometer, barometer. The IMU's noise (and the state
 estimate's) is `quadpilot.core.sensor_noise`, the model the training environments use.
+`Sensors` reads all of them for one step of one episode (`Reading`).
 
 All vectors are in the project's frames (world ENU, body FLU, SI units); `quadpilot.link.wire`
 turns them into HIL_SENSOR's FRD fields.
@@ -7,10 +8,12 @@ turns them into HIL_SENSOR's FRD fields.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from quadpilot.core.frames import euler_to_rotmat
-from quadpilot.core.sensor_noise import ADIS16448
+from quadpilot.core.sensor_noise import ADIS16448, SensorNoise, SensorNoiseState
 
 MAG_NED_GAUSS = (0.214, 0.012, 0.433)
 """gauss, Earth's field (north, east, down) at PX4's default SITL home (Zürich, 47.40° N 8.55° E):
@@ -80,3 +83,68 @@ def specific_force_flu(state: np.ndarray, thrust_n: float, mass: float, drag: fl
     if drag:
         f += world_to_body(state, drag * (np.asarray(wind_enu, np.float64) - state[3:6]) / mass)
     return f
+
+
+class Reading(NamedTuple):
+    """What the sensors measure at one step (body FLU, SI; the barometer in hPa at `alt_m` MSL)."""
+
+    gyro: np.ndarray
+    """(3,) rad/s, body rates (with IMU noise when it is on)."""
+    accel: np.ndarray
+    """(3,) m/s², specific force (with IMU noise when it is on)."""
+    mag: np.ndarray
+    """(3,) gauss."""
+    pressure_hpa: float
+    alt_m: float
+    """m above mean sea level."""
+    temperature_c: float
+    estimate: np.ndarray | None
+    """The state as an estimator would report it (12-state), with estimator noise only; else None."""
+
+
+class Sensors:
+    """The sensors of one episode: `core.sensor_noise`'s IMU and estimator processes when `spec` has
+    them (drawn from `rng`, which the episode's start state came from), on the ideal readings of
+    this module's models. `imu` and `estimator` say which parts are in force."""
+
+    def __init__(
+        self,
+        spec: SensorNoise | None,
+        dt: float,
+        rng: np.random.Generator,
+        home_alt_m: float,
+        imu: bool,
+        estimator: bool,
+    ) -> None:
+        self.imu, self.estimator, self.home_alt_m = imu, estimator, home_alt_m
+        self.noise = None if spec is None else SensorNoiseState(spec, 1, dt, rng)
+        self.variances: tuple[list[float], list[float]] | None = None
+        if self.noise is not None:
+            self.noise.reset()
+            self.variances = estimate_variances(spec, dt) if spec.estimator is not None else None
+
+    def read(self, state: np.ndarray, specific_force: np.ndarray, n: int) -> Reading:
+        """Step `n`'s reading of the 12-state `state` whose ideal accelerometer reads `specific_force`."""
+        gyro, accel, estimate = state[9:12].copy(), specific_force, None
+        noise = self.noise
+        if noise is not None:  # core.sensor_noise, as in training: advance one dt, then measure
+            if n > 0:
+                noise.step()
+            if self.imu:
+                gyro, accel = noise.gyro(gyro[None])[0], noise.accel(accel[None])[0]
+            if self.estimator:
+                estimate = noise.estimate(state[None])[0]
+        alt = self.home_alt_m + float(state[2])
+        return Reading(
+            gyro, accel, magnetometer_flu(state), isa_pressure_hpa(alt), alt, isa_temperature_c(alt), estimate
+        )
+
+
+def estimate_variances(spec: SensorNoise, dt: float) -> tuple[list[float], list[float]]:
+    """Stationary variances of the estimate (pose x, y, z, roll, pitch, yaw; velocity and rates),
+    NED order, for ODOMETRY's covariance diagonals."""
+    est, imu = spec.estimator, spec.imu
+    p = est.pos_white**2 + est.pos_drift**2
+    v = est.vel_white**2 + est.vel_drift**2
+    g = (imu.gyro_noise_density**2 / dt + imu.gyro_turn_on_bias**2) if imu else 0.0
+    return [p, p, p, est.tilt_drift**2, est.tilt_drift**2, est.yaw_drift**2], [v, v, v, g, g, g]

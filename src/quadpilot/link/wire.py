@@ -3,8 +3,9 @@
 Inside the project: world ENU (z up), body FLU, SI units, the 12-state vector of `core.dynamics`
 (x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r). On the wire, as the MAVLink common message set
 and PX4's Simulator MAVLink API define them: local NED, body FRD, positions as WGS-84 latitude and
-longitude in 1e-7 degrees and altitude in millimetres, velocities in cm/s. This module is the only
-place the two meet; everything is tested by round trips with known states.
+longitude in 1e-7 degrees and altitude in millimetres, velocities in cm/s. This module (with
+`link.frames`, the frame conversions and the local ↔ geodetic map it uses) is the only place the two
+meet; everything is tested by round trips with known states.
 
 Messages (https://mavlink.io/en/messages/common.html):
 - HIL_STATE_QUATERNION (simulator → autopilot, every step): ground truth. attitude_quaternion
@@ -21,13 +22,7 @@ Motor order: our model numbers its rotors in PX4's quad-X order already (core.dy
 MOTOR_LAYOUT: 0 front-right, 1 rear-left, 2 front-left, 3 rear-right), so `MOTOR_MAP` is the
 identity; it is kept explicit so that a different airframe changes one line.
 
-Position precision: 1e-7° of latitude is 1.11 cm, of longitude 1.11·cos(lat) cm, altitude 1 mm,
-velocity 1 cm/s. Rounding to the nearest step bounds the position error a policy sees at
-`POSITION_QUANTUM_M` / 2 per horizontal axis and the velocity error at 0.5 cm/s per axis, against
-a hover bar of 5 cm: no extra message is needed for precision. Local ↔ geodetic uses the
-equirectangular approximation around the home point on a sphere of the WGS-84 mean radius (as
-PX4's `map_projection` does for short distances; at 100 m from home it differs from the
-azimuthal-equidistant projection by far less than the 1e-7° quantum).
+Position precision and the local ↔ geodetic map: see `link.frames`.
 
 Integer fields are saturated to their MAVLink type's range in one place (`_saturating`, read from
 pymavlink's own message definitions): a long enough fall or climb reaches altitudes whose
@@ -43,21 +38,37 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
 
-EARTH_RADIUS_M = 6_371_008.8  # WGS-84 mean radius (IUGG), m
+# the frames (`link.frames`); the `X as X` ones are not used here, only re-exported: the rest of
+# the project reads every conversion of the wire from this module
+from .frames import EARTH_RADIUS_M as EARTH_RADIUS_M
+from .frames import LAT_QUANTUM_DEG as LAT_QUANTUM_DEG
+from .frames import (
+    Home,
+    enu_to_ned,
+    flu_to_frd,
+    frd_to_flu,
+    local_to_geodetic,
+    ned_frd_quaternion,
+    quaternion_to_rotmat,
+    rotmat_enu_flu_to_ned_frd,
+    rotmat_ned_frd_to_enu_flu,
+)
+from .frames import geodetic_to_local as geodetic_to_local
+from .frames import ned_to_enu as ned_to_enu
+from .frames import rotmat_to_quaternion as rotmat_to_quaternion
+
 G_MG = 9.80665 / 1000.0  # m/s² per milli-g (MAVLink's mG uses standard gravity)
 ARMED = 128  # MAV_MODE_FLAG_SAFETY_ARMED, in HIL_ACTUATOR_CONTROLS.mode
 LOCKSTEP = 1  # HIL_ACTUATOR_CONTROLS_FLAGS_LOCKSTEP, in HIL_ACTUATOR_CONTROLS.flags
 NUM_MOTORS = 4
 MOTOR_MAP = (0, 1, 2, 3)
 """controls[i] on the wire drives our model's rotor MOTOR_MAP[i] (identity: both are PX4 quad-X)."""
-LAT_QUANTUM_DEG = 1e-7
 MAX_BODY_RATE = 70.0
 """rad/s, the largest body rate a state may carry: twice the full scale of a 2000 °/s MEMS gyro (the
 usual range, e.g. the ADIS16448 and BMI088 of `core.sensor_noise`). The simulator's plant is held
@@ -144,143 +155,9 @@ def _check_rates(what: str, *rates: float) -> None:
             raise BadState("out_of_range", f"{what}: body rate {v:.6g} rad/s, expected within ±{MAX_BODY_RATE:g}")
 
 
-# ENU ↔ NED swaps x and y and negates z; FLU ↔ FRD negates y and z. Both are their own inverse.
-_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-_FLU_FRD = np.diag([1.0, -1.0, -1.0])
-_SWAP_XY = [1, 0, 2]  # ENU ↔ NED: swap the horizontal axes, flip the vertical one
-_FLIP_Z = np.array([1.0, 1.0, -1.0])
-_FLIP_YZ = np.array([1.0, -1.0, -1.0])  # FLU ↔ FRD
-
-
-@dataclass(frozen=True)
-class Home:
-    """The geodetic origin of the local frame. Default: PX4 SITL's home (Zürich, Irchel park)."""
-
-    lat_deg: float = 47.397742
-    lon_deg: float = 8.545594
-    alt_m: float = 488.0
-    """m above mean sea level, of the local frame's z = 0."""
-
-    @property
-    def metres_per_deg_lat(self) -> float:
-        return math.radians(1.0) * EARTH_RADIUS_M
-
-    @property
-    def metres_per_deg_lon(self) -> float:
-        return math.radians(1.0) * EARTH_RADIUS_M * math.cos(math.radians(self.lat_deg))
-
-    @property
-    def position_quantum_m(self) -> tuple[float, float, float]:
-        """Wire resolution of (east, north, up) in metres."""
-        return (LAT_QUANTUM_DEG * self.metres_per_deg_lon, LAT_QUANTUM_DEG * self.metres_per_deg_lat, 1e-3)
-
-
-def enu_to_ned(v: np.ndarray) -> np.ndarray:
-    """(…, 3) ENU → NED (also NED → ENU)."""
-    return np.asarray(v, np.float64)[..., _SWAP_XY] * _FLIP_Z
-
-
-ned_to_enu = enu_to_ned
-
-
-def flu_to_frd(v: np.ndarray) -> np.ndarray:
-    """(…, 3) body FLU → FRD (also FRD → FLU)."""
-    return np.asarray(v, np.float64) * _FLIP_YZ
-
-
-frd_to_flu = flu_to_frd
-
-
-def rotmat_enu_flu_to_ned_frd(r: np.ndarray) -> np.ndarray:
-    """Body FLU → ENU rotation (3, 3) → the same attitude as body FRD → NED."""
-    return _ENU_NED @ r @ _FLU_FRD
-
-
-rotmat_ned_frd_to_enu_flu = rotmat_enu_flu_to_ned_frd  # the same sandwich: both factors are involutions
-
-
-def rotmat_to_quaternion(r: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation → unit quaternion (w, x, y, z), w ≥ 0 (Shepperd's method, stable for all
-    rotations)."""
-    m = np.asarray(r, np.float64)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    if tr > 0.0:
-        s = math.sqrt(tr + 1.0) * 2.0
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2.0
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2.0
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2.0
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.array(q)
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
-
-
-def quaternion_to_rotmat(q) -> np.ndarray:
-    """Quaternion (w, x, y, z), normalised here → (3, 3) rotation."""
-    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def local_to_geodetic(pos_enu: np.ndarray, home: Home) -> tuple[int, int, int]:
-    """Local ENU position (m) → (lat degE7, lon degE7, alt mm), rounded to the wire's integers."""
-    e, n, u = (float(v) for v in pos_enu)
-    lat = home.lat_deg + n / home.metres_per_deg_lat
-    lon = home.lon_deg + e / home.metres_per_deg_lon
-    return round(lat * 1e7), round(lon * 1e7), round((home.alt_m + u) * 1000.0)
-
-
-def geodetic_to_local(lat_e7: int, lon_e7: int, alt_mm: int, home: Home) -> np.ndarray:
-    """(lat degE7, lon degE7, alt mm) → local ENU position (m)."""
-    n = (lat_e7 * 1e-7 - home.lat_deg) * home.metres_per_deg_lat
-    e = (lon_e7 * 1e-7 - home.lon_deg) * home.metres_per_deg_lon
-    return np.array([e, n, alt_mm * 1e-3 - home.alt_m])
-
-
 def _cm(v: float) -> int:
     """m/s → cm/s (the int16 field is saturated by `_saturating`)."""
     return round(v * 100.0)
-
-
-def _ned_frd_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Body FRD → NED quaternion (w ≥ 0) of ENU/FLU ZYX Euler angles, in scalar arithmetic (this runs
-    every simulation step). The same rotation as `rotmat_to_quaternion(rotmat_enu_flu_to_ned_frd(
-    euler_to_rotmat(roll, pitch, yaw)))`, which the tests check it against."""
-    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
-    sy, cy = math.sin(yaw), math.cos(yaw)
-    # R (body FLU → ENU) as core.frames.euler_to_rotmat; M = E·R·F: rows 0 and 1 swapped, row 2
-    # negated (E), columns 1 and 2 negated (F)
-    m00, m01, m02 = sy * cp, -(sy * sp * sr + cy * cr), -(sy * sp * cr - cy * sr)
-    m10, m11, m12 = cy * cp, -(cy * sp * sr - sy * cr), -(cy * sp * cr + sy * sr)
-    m20, m21, m22 = sp, cp * sr, cp * cr
-    tr = m00 + m11 + m22  # Shepperd's method, as rotmat_to_quaternion
-    if tr > 0.0:
-        t = math.sqrt(tr + 1.0) * 2.0
-        q = (0.25 * t, (m21 - m12) / t, (m02 - m20) / t, (m10 - m01) / t)
-    elif m00 > m11 and m00 > m22:
-        t = math.sqrt(1.0 + m00 - m11 - m22) * 2.0
-        q = ((m21 - m12) / t, 0.25 * t, (m01 + m10) / t, (m02 + m20) / t)
-    elif m11 > m22:
-        t = math.sqrt(1.0 + m11 - m00 - m22) * 2.0
-        q = ((m02 - m20) / t, (m01 + m10) / t, 0.25 * t, (m12 + m21) / t)
-    else:
-        t = math.sqrt(1.0 + m22 - m00 - m11) * 2.0
-        q = ((m10 - m01) / t, (m02 + m20) / t, (m12 + m21) / t, 0.25 * t)
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    if q[0] < 0:
-        n = -n
-    return q[0] / n, q[1] / n, q[2] / n, q[3] / n
 
 
 @_saturating(mavlink2.MAVLink_hil_state_quaternion_message)
@@ -297,7 +174,7 @@ def hil_state_quaternion_fields(
         acc = (a0 / G_MG, -a1 / G_MG, -a2 / G_MG)
     return {
         "time_usec": int(time_usec),
-        "attitude_quaternion": list(_ned_frd_quaternion(roll, pitch, yaw)),
+        "attitude_quaternion": list(ned_frd_quaternion(roll, pitch, yaw)),
         "rollspeed": p,
         "pitchspeed": -q,
         "yawspeed": -r,
@@ -446,7 +323,7 @@ def odometry_fields(state: np.ndarray, time_usec: int, pose_variance=None, veloc
         "x": y,  # NED north = ENU y
         "y": x,
         "z": -z,
-        "q": list(_ned_frd_quaternion(roll, pitch, yaw)),
+        "q": list(ned_frd_quaternion(roll, pitch, yaw)),
         "vx": float(v_body[0]),
         "vy": float(v_body[1]),
         "vz": float(v_body[2]),

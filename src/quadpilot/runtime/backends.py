@@ -6,11 +6,12 @@
 
 `OnnxRuntimePolicy` runs the graph in an ONNX Runtime session created once, single-threaded, with
 its inputs and outputs bound to preallocated buffers (I/O binding saves the per-call conversion
-of `session.run`). `NumpyPolicy` reads the weights from the same file (the initializers named in
-the file's architecture metadata) and computes the same network with NumPy. `cbackend.CPolicy`
-(backend "c") generates C from those same initializers (`cgen`, what `quad-export --format c`
-writes), compiles it once with the system C compiler and calls it through ctypes. None knows about
-safety: wrap them in `safety.SafetyMonitor`.
+of `session.run`). The NumPy and C backends compute the network the file's architecture metadata
+describes, read once from the file's initializers into a `network.Network`: `NumpyPolicy`
+computes it with NumPy; `cbackend.CPolicy` (backend "c") generates C from it (`cgen`, what
+`quad-export --format c` writes), compiles it once with the system C compiler and calls it through
+ctypes. All three implement `policy.Policy`. None knows about safety: wrap them in
+`safety.SafetyMonitor`.
 
 Rules, so that the three backends fly one function or none flies:
 - `load_policy` checks the file's contract first (`model.read_model`: every metadata value, and a
@@ -23,89 +24,27 @@ Rules, so that the three backends fly one function or none flies:
 - Whatever ONNX Runtime raises while creating the session or running the golden vectors becomes a
   `ModelContractError`: a bad file never ends in a traceback.
 - `Policy.act` takes only a real-number array of the policy's shape; anything else (strings,
-  None, dicts, object or complex arrays, a wrong size) raises `ObservationShapeError`, one line.
+  None, dicts, object or complex arrays, a wrong size) raises `ObservationShapeError`, one line
+  (`policy.Policy`).
 """
 
 from __future__ import annotations
 
-import math
 import os
+from collections.abc import Mapping
 
 import numpy as np
 
-from .model import NUM_MOTORS, ModelContractError, ModelInfo, initializer_arrays, read_model
+from .cbackend import CPolicy
+from .contract import NUM_MOTORS, ModelContractError, ModelInfo
+from .model import initializer_arrays, read_model
+from .network import Network, network_from_model
+from .policy import ObservationShapeError as ObservationShapeError  # re-exported: callers catch it from here
+from .policy import Policy
 
 BACKENDS = ("onnxruntime", "numpy", "c")
 GOLDEN_TOLERANCE = 1e-5
 """Max abs difference in motor command allowed on the golden vectors (the export parity bar)."""
-_FLOAT32 = np.dtype(np.float32)
-_REAL_KINDS = "fiu"
-"""NumPy dtype kinds an observation may hold: float, signed and unsigned integer (converted to
-float32). Not bool, complex, strings, bytes, objects, dates or structured records."""
-
-
-class ObservationShapeError(ValueError):
-    """An observation of the wrong size, or not an array of real numbers, reached a policy."""
-
-
-class Policy:
-    """Batch-1 policy over raw observations. Subclasses implement `_act(x)` on a float32 (obs_dim,)."""
-
-    backend = "?"
-
-    def __init__(self, info: ModelInfo) -> None:
-        self.info = info
-        self.obs_dim = info.obs_dim
-        self._shape = (info.obs_dim,)
-
-    def observation(self, obs) -> np.ndarray:
-        """`obs` as the (obs_dim,) float32 array `_act` takes; accepts (obs_dim,), (1, obs_dim) or a
-        sequence of real numbers, raises ObservationShapeError for anything else."""
-        if type(obs) is np.ndarray and obs.dtype is _FLOAT32 and obs.shape == self._shape:
-            return obs  # the control loop's case: one type check, one identity check, one compare
-        return self._checked_observation(obs)
-
-    def _checked_observation(self, obs) -> np.ndarray:
-        expects = f"this policy ({self.info.layout.name}) expects ({self.obs_dim},) or (1, {self.obs_dim}) float32"
-        try:
-            a = obs if type(obs) is np.ndarray else np.asarray(obs)
-        except Exception as e:  # ragged sequences, objects whose __array__ or __len__ raise, ...
-            raise ObservationShapeError(
-                f"observation of type {type(obs).__name__} is not an array of numbers ({type(e).__name__}); {expects}"
-            ) from None
-        if a.dtype.kind not in _REAL_KINDS:
-            raise ObservationShapeError(
-                f"observation of type {type(obs).__name__} holds {a.dtype} values, not real numbers; {expects}"
-            )
-        if a.shape != self._shape:
-            if a.shape != (1, self.obs_dim):
-                raise ObservationShapeError(f"observation has shape {a.shape}; {expects}")
-            a = a.reshape(self.obs_dim)
-        return a if a.dtype is _FLOAT32 else a.astype(np.float32)
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """Motor commands (4,) float32 for one observation (obs_dim,) or (1, obs_dim)."""
-        return self._act(self.observation(obs))
-
-    def _act(self, x: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-    def reset(self) -> None:
-        """Start of an episode: zero the recurrent state."""
-
-    def verify_golden(self) -> float:
-        """Replay the file's golden sequence from zero state; returns the max abs difference."""
-        self.reset()
-        worst = 0.0
-        for obs, want in zip(self.info.golden_obs, self.info.golden_action, strict=True):
-            got = self.act(obs)
-            diff = float(np.max(np.abs(got - want)))  # np.max propagates a NaN
-            if math.isnan(diff):  # a NaN command reproduces nothing: the worst mismatch, and final
-                worst = math.nan
-                break
-            worst = max(worst, diff)
-        self.reset()
-        return worst
 
 
 class OnnxRuntimePolicy(Policy):
@@ -194,109 +133,81 @@ class NumpyPolicy(Policy):
 
     backend = "numpy"
 
-    def __init__(self, info: ModelInfo, weights: dict[str, np.ndarray]) -> None:
+    def __init__(self, info: ModelInfo, network: Network | Mapping[str, np.ndarray]) -> None:
+        """`network`: the file's `Network`, or its initializers by name (read here with
+        `network.network_from_model`). Raises ModelContractError for a network this backend does
+        not compute."""
         super().__init__(info)
-        arch = info.architecture
-
-        def w(name: str | None, shape: tuple[int, ...] | None = None) -> np.ndarray:
-            if name is None and shape is not None:  # the exporter dropped an all-zero tensor
-                return np.zeros(shape)
-            if name not in weights:
-                raise ModelContractError(f"{info.path}: architecture names weight {name!r}, which the graph lacks")
-            return np.asarray(weights[name], np.float64)
-
-        try:
-            norm = arch.get("normalize")
-            self._norm = None
-            if norm:
-                self._norm = (
-                    w(norm["mean"]).astype(np.float32),
-                    w(norm["inv_std"]).astype(np.float32),
-                    float(norm["clip"]),
-                )
-            self._u_hover = float(arch["u_hover"])
-            self._a_lo, self._a_hi = (float(v) for v in arch["action_clip"])
-            self._c_lo, self._c_hi = (float(v) for v in arch["command_clip"])
-            layers = arch["layers"]
-            d = self.obs_dim
-            if info.recurrent:
-                spec, hsz = arch["lstm"], info.hidden
-                w_ih, w_hh = w(spec["weight_ih"]), w(spec["weight_hh"])
-                bias = w(spec["bias_ih"], (4 * hsz,)) + w(spec["bias_hh"], (4 * hsz,))
-                if w_ih.shape != (4 * hsz, d) or w_hh.shape != (4 * hsz, hsz):
-                    raise ModelContractError(
-                        f"{info.path}: LSTM weights {w_ih.shape}, {w_hh.shape} do not fit hidden {hsz}"
-                    )
-                a = np.vstack([w_ih.T, w_hh.T, bias[None, :]])  # (d + H + 1, 4H), gates i, f, g, o
-                i, f, g, o = (a[:, k * hsz : (k + 1) * hsz] for k in range(4))
-                self._A_lstm = np.ascontiguousarray(np.hstack([0.5 * i, 0.5 * f, 0.5 * o, g]), np.float32)
-                self._z = np.zeros(d + hsz + 1, np.float32)  # [x, h, 1]
-                self._z[-1] = 1.0
-                self._gates = np.zeros(4 * hsz, np.float32)
-                self._c = np.zeros(hsz, np.float32)
-                self._tmp = np.zeros(hsz, np.float32)
-                self._x = self._z[:d]
-                self._h_view = self._z[d : d + hsz]
-                self._hidden = hsz
-                prev = np.zeros(hsz + 1, np.float32)  # [h, 1] feeds the head
-                prev[-1] = 1.0
-                self._h_aug = prev
-                d = hsz
-            else:
-                prev = np.zeros(d + 1, np.float32)
-                prev[-1] = 1.0
-                self._x = prev[:d]
-            self._first = prev
-            self._dense = []
-            squashed = False
-            for k, layer in enumerate(layers):
-                wt = w(layer["weight"])
-                b = w(layer["bias"], wt.shape[:1])
-                if wt.ndim != 2 or wt.shape[1] != d or b.shape != (wt.shape[0],):
-                    raise ModelContractError(
-                        f"{info.path}: layer {k} weights {wt.shape}/{b.shape} do not follow a {d}-wide input"
-                    )
-                last = k == len(layers) - 1
-                out = np.zeros(wt.shape[0] + (0 if last else 1), np.float32)
-                if not last:
-                    out[-1] = 1.0
-                view = out if last else out[:-1]
-                mat = np.vstack([wt.T, b[None, :]])
-                squashed = last and layer.get("activation") == "tanh"
-                if last and layer.get("activation") not in (None, "tanh"):
-                    raise ModelContractError(
-                        f"{info.path}: the action head's activation {layer['activation']!r} is not one the NumPy "
-                        "backend maps to motor commands (none, or tanh)"
-                    )
-                if last and not squashed:
-                    # the command map folded into the action head (float64, then rounded once):
-                    # u·√(1 + clip(a, lo, hi)) = √(clip(u²·(a + 1), u²·(lo + 1), u²·(hi + 1)))
-                    mat[-1] += 1.0
-                    mat *= self._u_hover**2
-                mat = np.ascontiguousarray(mat, np.float32)
-                self._dense.append((prev, mat, view, None if squashed else _activation(layer.get("activation"))))
-                prev, d = out, wt.shape[0]
-            if d != NUM_MOTORS:
-                raise ModelContractError(f"{info.path}: the last layer has {d} outputs, expected {NUM_MOTORS}")
-            self._y = prev
-            # constants as float32 arrays: a ufunc converts a Python scalar on every call (~0.2 µs)
-            full = lambda v, n=NUM_MOTORS: np.full(n, v, np.float32)  # noqa: E731
-            u2 = self._u_hover**2
-            # a tanh head (SAC) comes before the command map, so it is not folded (see the docstring)
-            scratch = np.zeros(NUM_MOTORS, np.float32)
-            self._post = (full(0.0), full(2.0), full(-2.0), full(2.0 * u2), scratch) if squashed else None
-            self._k = (full(u2 * (self._a_lo + 1.0)), full(u2 * (self._a_hi + 1.0)), full(self._c_lo), full(self._c_hi))
-            if info.recurrent:
-                self._half = full(0.5, 3 * self._hidden)
-            # with a in [−1, 1], u_hover·√(1 + a) lies in [0, u_hover·√2]: the command clip can only act
-            # when u_hover·√2 may exceed its upper bound (the graph keeps it; here it costs 0.5 µs)
-            self._final_clip = not (
-                self._c_lo <= 0.0 and float(np.float32(self._u_hover)) * 1.41421357 < self._c_hi - 1e-6
+        net = network if isinstance(network, Network) else network_from_model(info, network)
+        self.network = net
+        self._norm = None
+        if net.norm is not None:
+            mean, inv_std, clip = net.norm
+            self._norm = (np.array(mean, np.float32), np.array(inv_std, np.float32), float(clip))
+        self._u_hover = net.u_hover
+        self._a_lo, self._a_hi = net.action_clip
+        self._c_lo, self._c_hi = net.command_clip
+        d = self.obs_dim
+        # the matrices are assembled in float64 from the file's float32 weights and rounded once
+        if net.lstm is not None:
+            hsz = net.hidden
+            w_ih, w_hh, b_ih, b_hh = (np.asarray(a, np.float64) for a in net.lstm)
+            a = np.vstack([w_ih.T, w_hh.T, (b_ih + b_hh)[None, :]])  # (d + H + 1, 4H), gates i, f, g, o
+            i, f, g, o = (a[:, k * hsz : (k + 1) * hsz] for k in range(4))
+            self._A_lstm = np.ascontiguousarray(np.hstack([0.5 * i, 0.5 * f, 0.5 * o, g]), np.float32)
+            self._z = np.zeros(d + hsz + 1, np.float32)  # [x, h, 1]
+            self._z[-1] = 1.0
+            self._gates = np.zeros(4 * hsz, np.float32)
+            self._c = np.zeros(hsz, np.float32)
+            self._tmp = np.zeros(hsz, np.float32)
+            self._x = self._z[:d]
+            self._h_view = self._z[d : d + hsz]
+            self._hidden = hsz
+            prev = np.zeros(hsz + 1, np.float32)  # [h, 1] feeds the head
+            prev[-1] = 1.0
+            self._h_aug = prev
+        else:
+            prev = np.zeros(d + 1, np.float32)
+            prev[-1] = 1.0
+            self._x = prev[:d]
+        self._dense = []
+        head = net.layers[-1].activation
+        if head not in (None, "tanh"):
+            raise ModelContractError(
+                f"{info.path}: the action head's activation {head!r} is not one the NumPy "
+                "backend maps to motor commands (none, or tanh)"
             )
-        except (KeyError, TypeError, ValueError) as e:
-            if isinstance(e, ModelContractError):
-                raise
-            raise ModelContractError(f"{info.path}: architecture metadata incomplete ({e!r})") from None
+        squashed = net.squashed
+        for k, layer in enumerate(net.layers):
+            wt, b = np.asarray(layer.weight, np.float64), np.asarray(layer.bias, np.float64)
+            last = k == len(net.layers) - 1
+            out = np.zeros(wt.shape[0] + (0 if last else 1), np.float32)
+            if not last:
+                out[-1] = 1.0
+            view = out if last else out[:-1]
+            mat = np.vstack([wt.T, b[None, :]])
+            if last and not squashed:
+                # the command map folded into the action head (float64, then rounded once):
+                # u·√(1 + clip(a, lo, hi)) = √(clip(u²·(a + 1), u²·(lo + 1), u²·(hi + 1)))
+                mat[-1] += 1.0
+                mat *= self._u_hover**2
+            mat = np.ascontiguousarray(mat, np.float32)
+            act = None if last and squashed else _activation(layer.activation)
+            self._dense.append((prev, mat, view, act))
+            prev = out
+        self._y = prev
+        # constants as float32 arrays: a ufunc converts a Python scalar on every call (~0.2 µs)
+        full = lambda v, n=NUM_MOTORS: np.full(n, v, np.float32)  # noqa: E731
+        u2 = self._u_hover**2
+        # a tanh head (SAC) comes before the command map, so it is not folded (see the docstring)
+        scratch = np.zeros(NUM_MOTORS, np.float32)
+        self._post = (full(0.0), full(2.0), full(-2.0), full(2.0 * u2), scratch) if squashed else None
+        self._k = (full(u2 * (self._a_lo + 1.0)), full(u2 * (self._a_hi + 1.0)), full(self._c_lo), full(self._c_hi))
+        if net.lstm is not None:
+            self._half = full(0.5, 3 * self._hidden)
+        # with a in [−1, 1], u_hover·√(1 + a) lies in [0, u_hover·√2]: the command clip can only act
+        # when u_hover·√2 may exceed its upper bound (the graph keeps it; here it costs 0.5 µs)
+        self._final_clip = not (self._c_lo <= 0.0 and float(np.float32(self._u_hover)) * 1.41421357 < self._c_hi - 1e-6)
 
     def _act(self, x: np.ndarray) -> np.ndarray:
         if self._norm is None:
@@ -404,19 +315,16 @@ def load_policy(path: str | os.PathLike, backend: str = "onnxruntime") -> Policy
     weights = initializer_arrays(model, info.path)
     if backend == "onnxruntime":
         policy: Policy = OnnxRuntimePolicy(info, model.SerializeToString())
-    elif backend == "c":
-        from .cbackend import CPolicy
-
-        policy = CPolicy.from_model(info, weights)
     else:
-        policy = NumpyPolicy(info, weights)
+        net = network_from_model(info, weights)
+        policy = CPolicy.from_network(info, net) if backend == "c" else NumpyPolicy(info, net)
     worst = _replay_golden(policy)
     if not worst <= GOLDEN_TOLERANCE:
         raise _refuse_golden(info, backend, worst)
     if backend == "onnxruntime":
         # the graph passed the structural check; the network the NumPy and C backends compute from
         # the same initializers must reproduce the same vectors, so that no file passes on its graph alone
-        worst = NumpyPolicy(info, weights).verify_golden()
+        worst = NumpyPolicy(info, network_from_model(info, weights)).verify_golden()
         if not worst <= GOLDEN_TOLERANCE:
             raise _refuse_golden(info, "numpy", worst, "cross-checking the onnxruntime backend")
     return policy

@@ -3,7 +3,7 @@
     policy = load_policy("models/hover/policy.onnx", backend="c")
 
 `load_policy` checks the file's contract as for the other backends; this module then generates
-policy.c/policy.h from the file's initializers and metadata (`cgen.generate`, the same generator
+policy.c/policy.h from the file's network and metadata (`cgen.generate`, the same generator
 `quad-export --format c` writes), compiles them with the system C compiler into a shared library
 and loads it with ctypes; `load_policy` replays the golden vectors through it before returning.
 
@@ -50,8 +50,9 @@ from pathlib import Path
 import numpy as np
 
 from . import cgen
-from .backends import Policy
-from .model import NUM_MOTORS, ModelInfo
+from .contract import NUM_MOTORS, ModelInfo
+from .network import Network, network_from_model
+from .policy import Policy
 
 COMPILE_FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared")
 """The runtime's build: C99 at -O2 (what the kernel was written for; no -ffast-math, no
@@ -234,7 +235,12 @@ class CPolicy(Policy):
     @classmethod
     def from_model(cls, info: ModelInfo, weights: dict[str, np.ndarray]) -> CPolicy:
         """Generate, compile (or find in the cache) and load the kernel for a checked file."""
-        code = cgen.generate(info, weights)
+        return cls.from_network(info, network_from_model(info, weights))
+
+    @classmethod
+    def from_network(cls, info: ModelInfo, net: Network) -> CPolicy:
+        """`from_model` for the file's network read already (`network.network_from_model`)."""
+        code = cgen.generate_network(info, net)
         return cls(info, code, build_library(code))
 
     def _act(self, x: np.ndarray) -> np.ndarray:

@@ -5,9 +5,10 @@ runtime's `c` backend.
     model, info = read_model("policy.onnx")
     code = generate(info, initializers(model))   # code.header (policy.h), code.source (policy.c)
 
-The input is what the NumPy backend reads: the file's checked metadata (`ModelInfo`) and its
-initializers, named by the architecture metadata. So the C, the NumPy backend and ONNX Runtime all
-compute from the same float32 weights of the same file, and `quad-export --format c` feeds this
+The input is what the NumPy backend reads: the file's checked metadata (`ModelInfo`) and the
+network its architecture metadata describes (`network.Network`, read from its initializers by
+`network.network_from_model`). So the C, the NumPy backend and ONNX Runtime all compute from the same
+float32 weights of the same file, and `quad-export --format c` feeds this
 generator the ONNX file it has just exported: there is no second path from a checkpoint to C.
 
 What the C computes is what the graph computes (`export.onnx_export.DeployablePolicy` /
@@ -19,14 +20,14 @@ p = e^(2·min(z, 0)), q = e^(−2·max(z, 0)): the same function as u_hover·√
 cancellation of 1 + tanh z near a = −1, which the √ would magnify to ~1e-4.
 
 The file is untrusted (DESIGN.md, "Trust boundaries"), and generated code is compiled and loaded,
-so nothing from the file reaches the text except numbers this module formats itself (`c_float`,
-and integers it computed): no metadata string and no initializer name. The text in the header and
-the comments comes from this runtime's own tables (the observation layout of `core.observation`
-found by name, `model.ACTION_MEANING`, the generator's fixed text), and the few strings the header
-repeats from the metadata are checked again here, as `model.read_model` checks them: the task is
-one of `core.mission.TASKS`, the source SHA-256 is 64 lowercase hex digits, the vehicle name a
-plain identifier (`model.VEHICLE_NAME_PATTERN`). A ModelInfo that fails any of these (one not made
-by `read_model`) is refused with a ModelContractError.
+so nothing from the file reaches the text except numbers the generator formats itself
+(`ctext.c_float`, and integers it computed): no metadata string and no initializer name. The text in
+the header and the comments comes from this runtime's own tables (the observation layout of
+`core.observation` found by name, `model.ACTION_MEANING`, the generator's fixed text), and the few
+strings the header repeats from the metadata are checked again here, as `model.read_model` checks
+them: the task is one of `core.mission.TASKS`, the source SHA-256 is 64 lowercase hex digits, the
+vehicle name a plain identifier (`model.VEHICLE_NAME_PATTERN`). A ModelInfo that fails any of these
+(one not made by `read_model`) is refused with a ModelContractError.
 
 How it is written, and why:
 - Weights are `static const float` arrays holding the file's float32 values exactly: each printed
@@ -46,13 +47,14 @@ How it is written, and why:
   the runtime's `SafetyMonitor` validates observations and commands around it, and firmware must do
   the same (the header says so).
 - The text is ASCII only (the layout's units and meanings are transliterated), for any toolchain.
+
+The names and text primitives every generated file shares are in `ctext`; the timing program and
+the operation count and Cortex-M4F estimate of a generated kernel are in `cbench`.
 """
 
 from __future__ import annotations
 
 import math
-import textwrap
-import unicodedata
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -60,6 +62,12 @@ import numpy as np
 from quadpilot.core.mission import TASKS
 from quadpilot.core.observation import ObsLayout, get_layout
 
+# the timing program and the cost estimates live in cbench; imported here too for existing callers
+from .cbench import CORTEX_M4_CYCLES as CORTEX_M4_CYCLES
+from .cbench import bench_source as bench_source
+from .cbench import cortex_m4_estimate as cortex_m4_estimate
+from .cbench import operation_count as operation_count
+from .ctext import ENTRY, GENERATOR, HEADER_NAME, RESET, SOURCE_NAME, STEP, ascii_text, c_array, c_float, clamp, wrap
 from .model import (
     ACTION_MEANING,
     NUM_MOTORS,
@@ -69,14 +77,8 @@ from .model import (
     ModelInfo,
     initializer_arrays,
 )
+from .network import FLT_MAX, Dense, Network, network_from_model
 
-GENERATOR = "quadpilot.runtime.cgen/1"
-"""Identifies the generated code's conventions; part of the runtime's compile-cache key."""
-HEADER_NAME, SOURCE_NAME = "policy.h", "policy.c"
-ENTRY, STEP, RESET = "quadpilot_policy", "quadpilot_policy_step", "quadpilot_policy_reset"
-ACTIVATIONS = ("tanh", "relu", "elu")
-VALUES_PER_LINE = 6
-FLT_MAX = float(np.finfo(np.float32).max)
 UNROLL = 4
 """Inputs per pass over the accumulators in the matrix-vector loops (see `_matvec`)."""
 TANH_C = """\
@@ -100,215 +102,10 @@ static float qp_sigmoid(float z)
 }"""
 
 
-@dataclass(frozen=True)
-class Dense:
-    weight: np.ndarray
-    """(out, in) float32, as in the file (torch's nn.Linear layout)."""
-    bias: np.ndarray
-    """(out,) float32 (zeros where the exporter dropped an all-zero bias)."""
-    activation: str | None
-    """None, tanh, relu or elu; tanh on the last layer is the SAC head (see the module doc)."""
-
-
-@dataclass(frozen=True)
-class Network:
-    """The network of one exported file, float32 weights exactly as stored in it."""
-
-    obs_dim: int
-    norm: tuple[np.ndarray, np.ndarray, float] | None
-    """(mean (obs_dim,), inv_std (obs_dim,), clip) or None."""
-    lstm: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
-    """(w_ih (4H, obs_dim), w_hh (4H, H), b_ih (4H,), b_hh (4H,)), gate order i, f, g, o; or None."""
-    hidden: int
-    layers: tuple[Dense, ...]
-    u_hover: float
-    action_clip: tuple[float, float]
-    command_clip: tuple[float, float]
-
-    @property
-    def recurrent(self) -> bool:
-        return self.lstm is not None
-
-    @property
-    def squashed(self) -> bool:
-        """The action head ends in tanh (a SAC policy): the command map is the p/q form."""
-        return self.layers[-1].activation == "tanh"
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """Every constant array, by the name the C source gives it."""
-        out: dict[str, np.ndarray] = {}
-        if self.norm is not None:
-            out["qp_obs_mean"], out["qp_obs_inv_std"] = self.norm[0], self.norm[1]
-        if self.lstm is not None:
-            w_ih, w_hh, b_ih, b_hh = self.lstm
-            out |= {"qp_lstm_w_ih": w_ih.T, "qp_lstm_w_hh": w_hh.T, "qp_lstm_b_ih": b_ih, "qp_lstm_b_hh": b_hh}
-        for k, layer in enumerate(self.layers):
-            out[f"qp_w{k}"], out[f"qp_b{k}"] = layer.weight.T, layer.bias
-        return out
-
-
 def initializers(model) -> dict[str, np.ndarray]:
     """The initializers of an `onnx.ModelProto` by name (what the architecture metadata names), as
     checked float32 arrays (`model.initializer_arrays`; ModelContractError for a bad one)."""
     return initializer_arrays(model)
-
-
-def network_from_model(info: ModelInfo, weights: dict[str, np.ndarray]) -> Network:
-    """The network the architecture metadata describes, its shapes checked against each other.
-
-    Raises ModelContractError naming what does not fit."""
-    arch, path = info.architecture, info.path
-
-    def w(name: str | None, shape: tuple[int, ...] | None = None) -> np.ndarray:
-        if name is None and shape is not None:  # the exporter drops an all-zero bias
-            return np.zeros(shape, np.float32)
-        if name not in weights:
-            raise ModelContractError(f"{path}: architecture names weight {name!r}, which the graph lacks")
-        a = np.asarray(weights[name])
-        if a.dtype != np.float32:
-            raise ModelContractError(f"{path}: weight {name!r} is {a.dtype}, expected float32")
-        if not np.all(np.isfinite(a)):
-            raise ModelContractError(f"{path}: weight {name!r} holds non-finite values")
-        return a
-
-    try:
-        norm = None
-        if arch.get("normalize"):
-            spec = arch["normalize"]
-            mean, inv_std = w(spec["mean"]), w(spec["inv_std"])
-            clip = float(spec["clip"])
-            if mean.shape != (info.obs_dim,) or inv_std.shape != (info.obs_dim,) or not clip > 0:
-                raise ModelContractError(
-                    f"{path}: normalisation mean {mean.shape}, inv_std {inv_std.shape}, clip {clip}: "
-                    f"expected ({info.obs_dim},), ({info.obs_dim},) and a clip > 0"
-                )
-            norm = (mean, inv_std, clip)
-        d, lstm, hsz = info.obs_dim, None, 0
-        if info.recurrent:
-            spec, hsz = arch["lstm"], info.hidden
-            w_ih, w_hh = w(spec["weight_ih"]), w(spec["weight_hh"])
-            b_ih, b_hh = w(spec["bias_ih"], (4 * hsz,)), w(spec["bias_hh"], (4 * hsz,))
-            if (
-                w_ih.shape != (4 * hsz, d)
-                or w_hh.shape != (4 * hsz, hsz)
-                or b_ih.shape != (4 * hsz,)
-                or b_hh.shape != (4 * hsz,)
-            ):
-                raise ModelContractError(
-                    f"{path}: LSTM weights {w_ih.shape}, {w_hh.shape}, biases {b_ih.shape}, {b_hh.shape} "
-                    f"do not fit hidden {hsz} and input {d}"
-                )
-            lstm, d = (w_ih, w_hh, b_ih, b_hh), hsz
-        layers = []
-        for k, layer in enumerate(arch["layers"]):
-            wt = w(layer["weight"])
-            b = w(layer["bias"], wt.shape[:1])
-            act = layer.get("activation")
-            if wt.ndim != 2 or wt.shape[1] != d or b.shape != (wt.shape[0],):
-                raise ModelContractError(
-                    f"{path}: layer {k} weights {wt.shape}/{b.shape} do not follow a {d}-wide input"
-                )
-            if act is not None and act not in ACTIVATIONS:
-                raise ModelContractError(
-                    f"{path}: activation {act!r} is not one the C generator writes ({', '.join(ACTIVATIONS)})"
-                )
-            layers.append(Dense(wt, b, act))
-            d = wt.shape[0]
-        if not layers or d != NUM_MOTORS:
-            raise ModelContractError(f"{path}: the last layer has {d} outputs, expected {NUM_MOTORS}")
-        a_lo, a_hi = (float(v) for v in arch["action_clip"])
-        c_lo, c_hi = (float(v) for v in arch["command_clip"])
-        u_hover = float(arch["u_hover"])
-    except (KeyError, TypeError, ValueError) as e:
-        if isinstance(e, ModelContractError):
-            raise
-        raise ModelContractError(f"{path}: architecture metadata incomplete ({e!r})") from None
-    numbers = [("u_hover", u_hover), ("action_clip", a_lo), ("action_clip", a_hi)]
-    numbers += [("command_clip", c_lo), ("command_clip", c_hi)] + ([("normalize clip", norm[2])] if norm else [])
-    for name, v in numbers:
-        if not (math.isfinite(v) and abs(v) <= FLT_MAX):  # c_float writes every one of them as a float
-            raise ModelContractError(f"{path}: architecture {name} is {v}, expected a finite float32 number")
-    if layers[-1].activation == "tanh" and (a_lo, a_hi) != (-1.0, 1.0):
-        raise ModelContractError(f"{path}: a tanh action head needs action_clip [-1, 1] (the graph has no clip)")
-    return Network(info.obs_dim, norm, lstm, hsz, tuple(layers), u_hover, (a_lo, a_hi), (c_lo, c_hi))
-
-
-# --- text helpers ------------------------------------------------------------------------------
-
-_ASCII = {
-    "ᵀ": "^T",
-    "·": "*",
-    "−": "-",
-    "→": "->",
-    "←": "<-",
-    "≤": "<=",
-    "≥": ">=",
-    "±": "+/-",
-    "×": "x",
-    "…": "...",
-    "°": " deg",
-    "²": "^2",
-    "³": "^3",
-    "√": "sqrt",
-    "ω": "omega",
-    "π": "pi",
-    "σ": "sigma",
-    "–": "-",
-    "—": "-",
-    "’": "'",
-}
-
-
-def ascii_text(text: str) -> str:
-    """`text` in ASCII for a C comment: known symbols spelled out, accents dropped, `*/` broken."""
-    out = []
-    for ch in text:
-        if ord(ch) < 128:
-            out.append(ch)
-        elif ch in _ASCII:
-            out.append(_ASCII[ch])
-        else:
-            plain = unicodedata.normalize("NFKD", ch).encode("ascii", "ignore").decode()
-            out.append(plain or "?")
-    return "".join(out).replace("*/", "* /").replace("/*", "/ *")
-
-
-def c_float(value) -> str:
-    """A float32 value as a C float constant that reads back to the same bits."""
-    v = np.float32(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{v} has no C float constant")
-    s = np.format_float_scientific(v, unique=True, trim="-") if v and not 1e-4 <= abs(v) < 1e7 else str(v)
-    if not any(c in s for c in ".e"):
-        s += ".0"
-    return s + "f"
-
-
-def _c_array(name: str, a: np.ndarray, comment: str) -> str:
-    a = np.asarray(a, np.float32)
-    dims = "".join(f"[{n}]" for n in a.shape)
-    lines = [f"/* {ascii_text(comment)} */", f"static const float {name}{dims} = {{"]
-    rows = a.reshape(-1, a.shape[-1]) if a.ndim == 2 else a.reshape(1, -1)
-    for r, row in enumerate(rows):
-        values = [c_float(v) for v in row]
-        chunks = [", ".join(values[k : k + VALUES_PER_LINE]) for k in range(0, len(values), VALUES_PER_LINE)]
-        if a.ndim == 2:
-            body = ",\n      ".join(chunks)
-            lines.append(f"    {{ {body} }}{',' if r < len(rows) - 1 else ''}")
-        else:
-            lines.extend(f"    {c}{',' if k < len(chunks) - 1 else ''}" for k, c in enumerate(chunks))
-    lines.append("};")
-    return "\n".join(lines)
-
-
-def _wrap(text: str, width: int = 100) -> str:
-    """A paragraph for a ` * ` comment block (the first line's ` * ` is the caller's)."""
-    return "\n * ".join(textwrap.wrap(text, width - 3, break_on_hyphens=False, break_long_words=False))
-
-
-def _clamp(var: str, lo: str, hi: str) -> str:
-    """`var` clamped to [lo, hi] as comparisons, so that a NaN passes through (as in the graph)."""
-    return f"{var} < {lo} ? {lo} : ({var} > {hi} ? {hi} : {var})"
 
 
 # --- the generator ----------------------------------------------------------------------------
@@ -351,7 +148,13 @@ def generate(info: ModelInfo, weights: dict[str, np.ndarray]) -> CCode:
     """policy.h and policy.c for the file `info` and `weights` come from (see the module doc).
 
     Raises ModelContractError if the architecture metadata and the weights do not fit."""
-    net = network_from_model(info, weights)
+    return generate_network(info, network_from_model(info, weights))
+
+
+def generate_network(info: ModelInfo, net: Network) -> CCode:
+    """policy.h and policy.c for the network `net` of the file `info` describes (`generate`, for a
+    caller that has read the network already). Raises ModelContractError for a ModelInfo whose
+    facts the header may not repeat (see the module doc)."""
     return CCode(_header(info, net), _source(info, net), net)
 
 
@@ -477,7 +280,7 @@ void {ENTRY}(const float obs[QP_OBS_DIM], float motors[QP_NUM_MOTORS]);"""
  *
  * Source checkpoint SHA-256: {facts.source_sha256}
  * Task: {facts.task}; training steps: {facts.training_steps:d}
- * {_wrap("Vehicle: " + facts.vehicle)}
+ * {wrap("Vehicle: " + facts.vehicle)}
  * Control period: {facts.control_period_s:g} s ({1.0 / facts.control_period_s:g} Hz): one call per control step.
  * Network: {_network_summary(net)}
  *
@@ -489,7 +292,7 @@ void {ENTRY}(const float obs[QP_OBS_DIM], float motors[QP_NUM_MOTORS]);"""
  *   index     field       unit   meaning
 {chr(10).join(rows)}
  *
- * {_wrap(output)}
+ * {wrap(output)}
  *
  * Safety: this code checks nothing. NaN in gives NaN out, and +Inf saturates to full thrust
  * without any error. Before calling it, check every observation is finite and physically
@@ -631,19 +434,19 @@ def _source(info: ModelInfo, net: Network) -> str:
     # comments name the arrays by their role and this code's own names, never by the file's
     # initializer names (text from the file; see the module doc)
     if net.norm is not None:
-        arrays.append(_c_array("qp_obs_mean", net.norm[0], "observation mean"))
-        arrays.append(_c_array("qp_obs_inv_std", net.norm[1], "1/std of the observation"))
+        arrays.append(c_array("qp_obs_mean", net.norm[0], "observation mean"))
+        arrays.append(c_array("qp_obs_inv_std", net.norm[1], "1/std of the observation"))
     if net.lstm is not None:
         w_ih, w_hh, b_ih, b_hh = net.lstm
         arrays += [
-            _c_array("qp_lstm_w_ih", w_ih.T, "LSTM input weights transposed: [input][gate], gates i, f, g, o"),
-            _c_array("qp_lstm_w_hh", w_hh.T, "LSTM recurrent weights transposed: [h][gate], gates i, f, g, o"),
-            _c_array("qp_lstm_b_ih", b_ih, "LSTM input bias (zeros where the exporter dropped an all-zero one)"),
-            _c_array("qp_lstm_b_hh", b_hh, "LSTM recurrent bias (zeros where the exporter dropped an all-zero one)"),
+            c_array("qp_lstm_w_ih", w_ih.T, "LSTM input weights transposed: [input][gate], gates i, f, g, o"),
+            c_array("qp_lstm_w_hh", w_hh.T, "LSTM recurrent weights transposed: [h][gate], gates i, f, g, o"),
+            c_array("qp_lstm_b_ih", b_ih, "LSTM input bias (zeros where the exporter dropped an all-zero one)"),
+            c_array("qp_lstm_b_hh", b_hh, "LSTM recurrent bias (zeros where the exporter dropped an all-zero one)"),
         ]
     for k, layer in enumerate(net.layers):
-        arrays.append(_c_array(f"qp_w{k}", layer.weight.T, f"layer {k}: weight transposed, [in][out]"))
-        arrays.append(_c_array(f"qp_b{k}", layer.bias, f"layer {k}: bias (zeros where the exporter dropped it)"))
+        arrays.append(c_array(f"qp_w{k}", layer.weight.T, f"layer {k}: weight transposed, [in][out]"))
+        arrays.append(c_array(f"qp_b{k}", layer.bias, f"layer {k}: bias (zeros where the exporter dropped it)"))
     lo, hi = net.action_clip
     c_lo, c_hi = net.command_clip
     consts = [
@@ -673,7 +476,7 @@ def _source(info: ModelInfo, net: Network) -> str:
             "    /* observation normalisation */",
             f"    for (i = 0; i < {d}; ++i) {{",
             "        const float v = (obs[i] - qp_obs_mean[i]) * qp_obs_inv_std[i];",
-            f"        x[i] = {_clamp('v', '-qp_obs_clip', 'qp_obs_clip')};",
+            f"        x[i] = {clamp('v', '-qp_obs_clip', 'qp_obs_clip')};",
             "    }",
         ]
         x = "x"
@@ -712,16 +515,16 @@ def _source(info: ModelInfo, net: Network) -> str:
             "        const float p = expf((z > 0.0f ? 0.0f : z) * 2.0f);",
             "        const float q = expf((z < 0.0f ? 0.0f : z) * -2.0f);",
             "        const float m = sqrtf(p * 2.0f / (p + q)) * qp_u_hover;",
-            f"        motors[j] = {_clamp('m', 'qp_command_lo', 'qp_command_hi')};",
+            f"        motors[j] = {clamp('m', 'qp_command_lo', 'qp_command_hi')};",
             "    }",
         ]
     else:
         body += [
             "    /* mean action -> motor command (core.dynamics.action_to_command) */",
             f"    for (j = 0; j < {NUM_MOTORS}; ++j) {{",
-            f"        const float a = {_clamp(f'{x}[j]', 'qp_action_lo', 'qp_action_hi')};",
+            f"        const float a = {clamp(f'{x}[j]', 'qp_action_lo', 'qp_action_hi')};",
             "        const float m = qp_u_hover * sqrtf(1.0f + a);",
-            f"        motors[j] = {_clamp('m', 'qp_command_lo', 'qp_command_hi')};",
+            f"        motors[j] = {clamp('m', 'qp_command_lo', 'qp_command_hi')};",
             "    }",
         ]
     if net.recurrent:
@@ -768,185 +571,3 @@ def _source(info: ModelInfo, net: Network) -> str:
         "",
     ]
     return "\n".join(lines)
-
-
-# --- a timing and self-test program ------------------------------------------------------------
-
-
-def bench_source(info: ModelInfo, iterations: int = 2_000, repeats: int = 101) -> str:
-    """bench.c: replays the file's golden vectors through the kernel (exit status 1 if any command
-    differs by more than 1e-5), then times `repeats` × `iterations` back-to-back calls with
-    clock_gettime(CLOCK_MONOTONIC) and prints one line per repeat: `ns_per_inference <value>`.
-    Arguments override both: `bench [iterations [repeats]]`. Many short repeats (about a
-    millisecond each) and their median, rather than one long run, because a long run on a shared
-    machine includes the time other processes held the core.
-
-    The observation changes by one ulp-scale step per call and the commands feed a volatile sum, so
-    the compiler can neither hoist the call out of the loop nor drop it. POSIX (clock_gettime)."""
-    golden_obs = ",\n    ".join("{ " + ", ".join(c_float(v) for v in row) + " }" for row in info.golden_obs)
-    golden_act = ",\n    ".join("{ " + ", ".join(c_float(v) for v in row) + " }" for row in info.golden_action)
-    k = len(info.golden_obs)
-    recurrent = info.recurrent
-    call = f"{STEP}(obs, h, c, motors)" if recurrent else f"{ENTRY}(obs, motors)"
-    state = "static float h[QP_HIDDEN], c[QP_HIDDEN];\n" if recurrent else ""
-    reset = f"    {RESET}(h, c);\n" if recurrent else ""
-    return f"""\
-/* bench.c: golden-vector check and timing loop for {HEADER_NAME}, generated by {GENERATOR}. */
-#define _POSIX_C_SOURCE 199309L
-#include "{HEADER_NAME}"
-
-#include <math.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <time.h>
-
-static const float golden_obs[{k}][QP_OBS_DIM] = {{
-    {golden_obs}
-}};
-static const float golden_action[{k}][QP_NUM_MOTORS] = {{
-    {golden_act}
-}};
-{state}static volatile float sink;
-
-static double now_ns(void)
-{{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec * 1e9 + (double)t.tv_nsec;
-}}
-
-int main(int argc, char **argv)
-{{
-    long iterations = argc > 1 ? atol(argv[1]) : {iterations}L;
-    int repeats = argc > 2 ? atoi(argv[2]) : {repeats};
-    float obs[QP_OBS_DIM], motors[QP_NUM_MOTORS];
-    float worst = 0.0f;
-    int r, k, i;
-    long n;
-{reset}    for (k = 0; k < {k}; ++k) {{
-        for (i = 0; i < QP_OBS_DIM; ++i) obs[i] = golden_obs[k][i];
-        {call};
-        for (i = 0; i < QP_NUM_MOTORS; ++i) {{
-            float diff = fabsf(motors[i] - golden_action[k][i]);
-            if (!(diff <= worst)) worst = diff;
-        }}
-    }}
-    printf("golden_max_abs_diff %.3g\\n", (double)worst);
-    if (!(worst <= 1e-5f)) return 1;
-    for (r = 0; r < repeats; ++r) {{
-        double t0, t1;
-        float acc = 0.0f;
-{reset}        for (i = 0; i < QP_OBS_DIM; ++i) obs[i] = golden_obs[0][i];
-        t0 = now_ns();
-        for (n = 0; n < iterations; ++n) {{
-            obs[n % QP_OBS_DIM] += 1e-6f;
-            {call};
-            acc += motors[0] + motors[3];
-        }}
-        t1 = now_ns();
-        sink = acc;
-        printf("ns_per_inference %.2f\\n", (t1 - t0) / (double)iterations);
-    }}
-    return 0;
-}}
-"""
-
-
-# --- operation count and a Cortex-M4F estimate -------------------------------------------------
-
-
-def operation_count(net: Network) -> dict[str, int]:
-    """Floating-point work of one inference, as the generated code does it.
-
-    mac: multiply-accumulates (bias included as the first add); tanh: `qp_tanh` calls (one expf
-    and one division each); expf: the LSTM's sigmoids (each one expf, one add and one division,
-    the divisions counted in `div`) and a tanh head's p and q; expm1f: ELU; sqrtf: the motor map;
-    other: adds, multiplies and compares outside the matrix products; weights: float constants read
-    (each once)."""
-    mac = sum(layer.weight.size for layer in net.layers)
-    hidden_layers = net.layers[:-1] if net.squashed else net.layers
-    tanh = sum(layer.weight.shape[0] for layer in hidden_layers if layer.activation == "tanh")
-    expm1 = sum(layer.weight.shape[0] for layer in net.layers if layer.activation == "elu")
-    other = sum(layer.weight.shape[0] for layer in net.layers)  # the bias add
-    exp = div = 0
-    if net.norm is not None:
-        other += 4 * net.obs_dim  # subtract, multiply, two compares
-    if net.lstm is not None:
-        hs = net.hidden
-        mac += 4 * hs * (net.obs_dim + hs)
-        other += 2 * 4 * hs  # b_ih + b_hh, then the first add
-        exp += 3 * hs  # sigmoid of the i, f, o gates
-        div += 3 * hs
-        tanh += 2 * hs  # the cell candidate and tanh(c)
-        other += 3 * hs + 3 * hs  # 1 + e^-z; c = f*c + i*g (two multiplies, one add) and h = o*tanh(c)
-    if net.squashed:  # per motor: p and q (two expf), 2p/(p + q), one clamp fewer
-        exp += 2 * NUM_MOTORS
-        div += NUM_MOTORS
-        other += NUM_MOTORS * 6  # min, max, two multiplies by +/-2, 2p and p + q
-        other -= NUM_MOTORS * 3  # no action clamp and no 1 + a
-    other += NUM_MOTORS * 6  # two clamps (four compares), 1 + a, the multiply by u_hover
-    weights = sum(a.size for a in net.arrays().values())
-    return {
-        "mac": mac,
-        "tanh": tanh,
-        "expf": exp,
-        "expm1f": expm1,
-        "div": div,
-        "sqrtf": NUM_MOTORS,
-        "other": other,
-        "weights": weights,
-    }
-
-
-CORTEX_M4_CYCLES = {
-    "mac": (4, 6),
-    "tanh": (110, 160),
-    "expf": (90, 130),
-    "expm1f": (110, 170),
-    "div": (14, 14),
-    "sqrtf": (14, 20),
-    "other": (1, 3),
-}
-"""Cycles per operation on a Cortex-M4F (single-precision FPU) at zero wait states, (low, high).
-
-Instruction timings: ARM Cortex-M4 Technical Reference Manual r0p1 (DDI 0439B), table 7-1 "FPU
-instruction set" (also TI SWCU192, table 3-27): VADD/VSUB/VMUL 1 cycle, VMLA/VFMA 3, VDIV 14,
-VSQRT 14, VLDR 2 (neighbouring loads pipeline to 1), VLDM 1 + N, VSTR 2, VMOV/VCMP/VMRS 1; a taken
-branch 1 + 1..3 (pipeline refill). How they add up, from `arm-none-eabi-objdump -d` of this
-generator's code built by arm-none-eabi-gcc 12.2 at -O2 -mcpu=cortex-m4 -mfpu=fpv4-sp-d16
--mfloat-abi=hard, linked with Debian's newlib 3.3 (the v7e-m+fp hard-float multilib):
-
-- mac: the inner loop does 4 products per pass: 4 weight loads and 1 accumulator load (VLDM/VLDR),
-  4 VMUL + 4 VADD (ISO C does not contract them into VFMA, 3 cycles anyway), 1 store, compare and
-  branch: 16 instructions, about 18-22 cycles, so 4-6 cycles per multiply-accumulate. There is no
-  SIMD for floats on the M4.
-- expf: newlib's `expf` wrapper (overflow/underflow checks, finitef) around fdlibm's
-  `__ieee754_expf` (single precision, no double arithmetic): about 45 + 20 instructions on the
-  common path, with one VDIV, five VFMA and about twelve VLDR of constants: 90-130 cycles.
-- tanh: `qp_tanh` is expf plus one VDIV, two adds and the call: 110-160 cycles.
-- expm1f (ELU only): fdlibm's `expm1f`, one VDIV and a longer polynomial path: 110-170.
-- div 14 (VDIV); sqrtf 14 (inline VSQRT; 20 with the errno check's compare and branch).
-- Flash: at 168 MHz an STM32F4 reads flash with 5 wait states (RM0090, table 10, 2.7-3.6 V); the
-  ART accelerator's prefetch and instruction cache hide most of it for code, but each weight is
-  read once per inference, so a 128-bit flash line (4 floats) missing the 8-line data cache costs
-  ~6 cycles: up to +1.5 cycles per weight (`FLASH_CYCLES_PER_WEIGHT`), avoidable by copying the
-  weights to RAM (e.g. the 64 KiB CCM) if they fit.
-
-These are estimates from instruction counts, not a measurement on hardware (none here)."""
-FLASH_CYCLES_PER_WEIGHT = (0.0, 1.5)
-
-
-def cortex_m4_estimate(counts: dict[str, int], mhz: float = 168.0) -> dict[str, float]:
-    """Cycles (low, high) and µs at `mhz` for one inference on a Cortex-M4F, from `operation_count`
-    and the per-operation figures of `CORTEX_M4_CYCLES` (read its doc for where they come from)."""
-    low = sum(counts[k] * CORTEX_M4_CYCLES[k][0] for k in CORTEX_M4_CYCLES)
-    high = sum(counts[k] * CORTEX_M4_CYCLES[k][1] for k in CORTEX_M4_CYCLES)
-    low += counts["weights"] * FLASH_CYCLES_PER_WEIGHT[0]
-    high += counts["weights"] * FLASH_CYCLES_PER_WEIGHT[1]
-    return {
-        "cycles_low": float(low),
-        "cycles_high": float(high),
-        "us_low": low / mhz,
-        "us_high": high / mhz,
-        "mhz": mhz,
-    }

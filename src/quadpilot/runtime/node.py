@@ -11,10 +11,11 @@ observation is built from that estimate instead of the ground truth, which is st
 flight is logged and judged on.
 
 One receive point (`Link.recv`, one system call per batch of messages) dispatching on
-`get_type()`. Link loss is measured on the host's monotonic clock, never simulation time: no
-state for `link_timeout_s` (100 ms) latches a failsafe (motors off, disarmed, STATUSTEXT), which
-only a new `fly()` clears. Timestamps that go backwards, repeat or jump are dropped and counted.
-Motor commands go to the simulator's address only; optional MAVLink 2 signing (`signing_key`).
+`get_type()` through a table of handlers, one per message type (`_Flight.HANDLERS`). Link loss is
+measured on the host's monotonic clock, never simulation time: no state for `link_timeout_s`
+(100 ms) latches a failsafe (motors off, disarmed, STATUSTEXT), which only a new `fly()` clears.
+Timestamps that go backwards, repeat or jump are dropped and counted. Motor commands go to the
+simulator's address only; optional MAVLink 2 signing (`signing_key`).
 
 Nothing that arrives can end the loop. A state that cannot be a state (`link.wire.BadState`:
 non-finite values, a zero or non-unit quaternion, a body rate or position no vehicle has) is dropped
@@ -196,8 +197,6 @@ class Node:
         (step → target position, velocity or None, e.g. `core.mission.Mission.target_at`)
         overrides `cfg.targets` for this episode."""
         cfg = self.cfg
-        targets = targets or cfg.targets
-        fixed = self._target
         log = EpisodeLog()
         monitor.reset()
         period = cfg.control_period_s or monitor.policy.info.control_period_s
@@ -212,17 +211,9 @@ class Node:
         mav = link.mav
         steps = round(cfg.duration_s / period)
         start = time.monotonic()
-        last_state_at = start
+        flight = _Flight(cfg, monitor, link, gcs, targets or cfg.targets, self._target, log, start)
+        handle = flight.handle
         last_heartbeat = -math.inf
-        state: np.ndarray | None = None  # the last state that passed wire's checks
-        state_time = -1
-        bad_time = -1  # time_usec of the last state dropped by those checks: its step is flown blind
-        bad_at = -math.inf
-        estimate: np.ndarray | None = None  # ODOMETRY: the estimator's state, if the simulator sends one
-        estimate_time = -1
-        last_sensor_time = -1
-        received = 0
-        source = "policy"
         try:
             while log.steps < steps:
                 now = time.monotonic()
@@ -236,100 +227,29 @@ class Node:
                     )
                     link.flush()
                     last_heartbeat = now
-                wait = cfg.link_timeout_s - (now - last_state_at)
+                wait = cfg.link_timeout_s - (now - flight.last_state_at)
                 try:
-                    msg = link.recv(wait) if wait > 0 else None
+                    msg = link.recv(wait) if wait > 0 else None  # the one receive point
                 except transport.PeerClosed:
                     raise
                 except Exception:  # pymavlink reports garbage as BAD_DATA; anything else it raises is too
                     log.dropped["parser_error"] += 1
                     continue
                 if msg is None:
-                    if time.monotonic() - last_state_at >= cfg.link_timeout_s:
-                        log.failsafe = "no valid state" if bad_at > last_state_at else "state stream silent"
-                        log.failsafe_latency_s = time.monotonic() - last_state_at
-                        self._failsafe(link, gcs, log.failsafe, state_time)
+                    if time.monotonic() - flight.last_state_at >= cfg.link_timeout_s:
+                        log.failsafe = (
+                            "no valid state" if flight.bad_at > flight.last_state_at else "state stream silent"
+                        )
+                        log.failsafe_latency_s = time.monotonic() - flight.last_state_at
+                        self._failsafe(link, gcs, log.failsafe, flight.state_time)
                         break
                     continue
-                kind = msg.get_type()
-                if kind == "HIL_STATE_QUATERNION":
-                    if msg.time_usec <= state_time:
-                        log.dropped["time_backwards" if msg.time_usec < state_time else "time_repeated"] += 1
-                        continue
-                    if state_time >= 0 and msg.time_usec - state_time > cfg.max_time_jump_s * 1e6:
-                        log.dropped["time_jump"] += 1
-                        continue
-                    try:
-                        new = wire.state_from_hil_state_quaternion(msg, cfg.home)
-                    except wire.BadState as e:
-                        # never flown on, logged or sent to the ground station; its step is still
-                        # answered (see the HIL_SENSOR branch), and the link-loss timer keeps running
-                        log.dropped[f"state_{e.reason}"] += 1
-                        bad_time, bad_at = msg.time_usec, time.monotonic()
-                        continue
-                    state = new
-                    state_time = msg.time_usec
-                    last_state_at = time.monotonic()
-                    received += 1
-                elif kind == "HIL_SENSOR":
-                    t_in = time.perf_counter()
-                    t_us = msg.time_usec
-                    blind = t_us == bad_time and bad_time > state_time  # its step's state was dropped
-                    # a step is answered once, and never after a later one
-                    if t_us <= last_sensor_time or (t_us != state_time and not blind):
-                        log.dropped["sensor_without_state"] += 1
-                        continue
-                    last_sensor_time = t_us
-                    received += 1
-                    k = log.steps
-                    target, target_vel = (fixed, None) if targets is None else targets(k)
-                    fresh = t_us == state_time
-                    if fresh:
-                        s = (estimate if estimate_time == t_us else state).copy()
-                        s[9:12] = wire.gyro_from_hil_sensor(msg)
-                        obs = build_observation(s[None], target, target_vel)[0]
-                        cmd = monitor.act(obs)
-                    else:
-                        # this step's state was dropped: the step is still answered, once (a lockstep
-                        # peer waits for it), with the monitor's blind hover command, as for any
-                        # observation it cannot trust
-                        cmd = monitor.blind("state_dropped")
-                    mav.hil_actuator_controls_send(**wire.actuator_controls_fields(cmd, t_us, True, cfg.lockstep))
-                    link.flush()
-                    if state is None:  # flown blind before any valid state: nothing to log it against
-                        continue
-                    log.latency_s.append(time.perf_counter() - t_in)
-                    log.wall.append(t_in)
-                    log.t.append(t_us * 1e-6)
-                    log.states.append(state)  # on a blind step the last valid state, what the node knew
-                    log.targets.append(target)
-                    log.commands.append(cmd)
-                    log.sources.append(monitor.source)
-                    if gcs is not None:
-                        if monitor.source != source:
-                            source = monitor.source
-                            gcs.statustext(
-                                mavlink2.MAV_SEVERITY_WARNING,
-                                f"safety: {source} flying ({', '.join(sorted(monitor.events)) or 'policy'})",
-                            )
-                        if fresh:  # telemetry only ever from a state that passed the checks, and new
-                            gcs.step(k, state, t_us, True, sum(log.dropped.values()), received)
-                elif kind == "ODOMETRY":
-                    try:
-                        estimate, estimate_time = wire.state_from_odometry(msg), msg.time_usec
-                    except wire.BadState as e:  # as no estimate: the step flies on the ground truth
-                        log.dropped[f"odometry_{e.reason}"] += 1
-                elif kind == "BAD_DATA":
-                    log.dropped[transport.bad_data_reason(msg)] += 1
-                elif kind.startswith("UNKNOWN_"):
-                    log.dropped["unknown_message_id"] += 1
-                elif kind not in ("HIL_GPS", "HEARTBEAT", "STATUSTEXT"):
-                    log.dropped[f"unexpected_{kind.lower()}"] += 1
+                handle(msg)
         except transport.PeerClosed:
             if log.steps < steps:
                 log.failsafe = "simulator closed the link"
-                log.failsafe_latency_s = time.monotonic() - last_state_at
-                self._failsafe(link, gcs, log.failsafe, state_time)
+                log.failsafe_latency_s = time.monotonic() - flight.last_state_at
+                self._failsafe(link, gcs, log.failsafe, flight.state_time)
         finally:
             for name, reason in (("foreign_datagrams", "foreign_peer"), ("truncated_datagrams", "truncated_datagram")):
                 if getattr(link, name, 0):
@@ -360,6 +280,139 @@ class Node:
         if gcs is not None:
             gcs.statustext(mavlink2.MAV_SEVERITY_CRITICAL, text)
             gcs.heartbeat(False, mavlink2.MAV_STATE_CRITICAL)
+
+
+class _Flight:
+    """One episode of `Node.fly`: what the node knows so far, and one handler per message type.
+
+    `handle` dispatches a received message on `get_type()` through `HANDLERS`; a new message type
+    is one more method and one more entry. Types not in the table are counted as dropped
+    (`unknown_message_id` for ids pymavlink does not know, else `unexpected_<type>`)."""
+
+    def __init__(
+        self,
+        cfg: NodeConfig,
+        monitor: SafetyMonitor,
+        link: transport.Link,
+        gcs: GroundStation | None,
+        targets: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None,
+        fixed: np.ndarray,
+        log: EpisodeLog,
+        start: float,
+    ) -> None:
+        self.cfg, self.monitor, self.link, self.mav, self.gcs = cfg, monitor, link, link.mav, gcs
+        self.targets, self.fixed, self.log = targets, fixed, log
+        self.last_state_at = start  # host monotonic clock: link loss is measured on it
+        self.state: np.ndarray | None = None  # the last state that passed wire's checks
+        self.state_time = -1
+        self.bad_time = -1  # time_usec of the last state dropped by those checks: its step is flown blind
+        self.bad_at = -math.inf
+        self.estimate: np.ndarray | None = None  # ODOMETRY: the estimator's state, if the simulator sends one
+        self.estimate_time = -1
+        self.last_sensor_time = -1
+        self.received = 0
+        self.source = "policy"
+
+    def handle(self, msg) -> None:
+        kind = msg.get_type()
+        handler = self.HANDLERS.get(kind)
+        if handler is not None:
+            handler(self, msg)
+        elif kind.startswith("UNKNOWN_"):
+            self.log.dropped["unknown_message_id"] += 1
+        else:
+            self.log.dropped[f"unexpected_{kind.lower()}"] += 1
+
+    def on_state(self, msg) -> None:
+        """HIL_STATE_QUATERNION: the ground truth of a step, checked before it is believed."""
+        log = self.log
+        if msg.time_usec <= self.state_time:
+            log.dropped["time_backwards" if msg.time_usec < self.state_time else "time_repeated"] += 1
+            return
+        if self.state_time >= 0 and msg.time_usec - self.state_time > self.cfg.max_time_jump_s * 1e6:
+            log.dropped["time_jump"] += 1
+            return
+        try:
+            new = wire.state_from_hil_state_quaternion(msg, self.cfg.home)
+        except wire.BadState as e:
+            # never flown on, logged or sent to the ground station; its step is still answered (see
+            # on_sensor), and the link-loss timer keeps running
+            log.dropped[f"state_{e.reason}"] += 1
+            self.bad_time, self.bad_at = msg.time_usec, time.monotonic()
+            return
+        self.state = new
+        self.state_time = msg.time_usec
+        self.last_state_at = time.monotonic()
+        self.received += 1
+
+    def on_sensor(self, msg) -> None:
+        """HIL_SENSOR: the step's last message; answered exactly once with HIL_ACTUATOR_CONTROLS."""
+        t_in = time.perf_counter()
+        log, monitor, state = self.log, self.monitor, self.state
+        t_us = msg.time_usec
+        blind = t_us == self.bad_time and self.bad_time > self.state_time  # its step's state was dropped
+        # a step is answered once, and never after a later one
+        if t_us <= self.last_sensor_time or (t_us != self.state_time and not blind):
+            log.dropped["sensor_without_state"] += 1
+            return
+        self.last_sensor_time = t_us
+        self.received += 1
+        k = log.steps
+        target, target_vel = (self.fixed, None) if self.targets is None else self.targets(k)
+        fresh = t_us == self.state_time
+        if fresh:
+            s = (self.estimate if self.estimate_time == t_us else state).copy()
+            s[9:12] = wire.gyro_from_hil_sensor(msg)
+            obs = build_observation(s[None], target, target_vel)[0]
+            cmd = monitor.act(obs)
+        else:
+            # this step's state was dropped: the step is still answered, once (a lockstep peer waits
+            # for it), with the monitor's blind hover command, as for any observation it cannot trust
+            cmd = monitor.blind("state_dropped")
+        self.mav.hil_actuator_controls_send(**wire.actuator_controls_fields(cmd, t_us, True, self.cfg.lockstep))
+        self.link.flush()
+        if state is None:  # flown blind before any valid state: nothing to log it against
+            return
+        log.latency_s.append(time.perf_counter() - t_in)
+        log.wall.append(t_in)
+        log.t.append(t_us * 1e-6)
+        log.states.append(state)  # on a blind step the last valid state, what the node knew
+        log.targets.append(target)
+        log.commands.append(cmd)
+        log.sources.append(monitor.source)
+        gcs = self.gcs
+        if gcs is not None:
+            if monitor.source != self.source:
+                self.source = monitor.source
+                gcs.statustext(
+                    mavlink2.MAV_SEVERITY_WARNING,
+                    f"safety: {self.source} flying ({', '.join(sorted(monitor.events)) or 'policy'})",
+                )
+            if fresh:  # telemetry only ever from a state that passed the checks, and new
+                gcs.step(k, state, t_us, True, sum(log.dropped.values()), self.received)
+
+    def on_odometry(self, msg) -> None:
+        """ODOMETRY: the estimator's state for a step, flown on instead of the ground truth."""
+        try:
+            self.estimate, self.estimate_time = wire.state_from_odometry(msg), msg.time_usec
+        except wire.BadState as e:  # as no estimate: the step flies on the ground truth
+            self.log.dropped[f"odometry_{e.reason}"] += 1
+
+    def on_bad_data(self, msg) -> None:
+        self.log.dropped[transport.bad_data_reason(msg)] += 1
+
+    def ignore(self, msg) -> None:
+        """A message the node has no use for (GPS: it flies on the state messages)."""
+
+    HANDLERS = {
+        "HIL_STATE_QUATERNION": on_state,
+        "HIL_SENSOR": on_sensor,
+        "ODOMETRY": on_odometry,
+        "BAD_DATA": on_bad_data,
+        "HIL_GPS": ignore,
+        "HEARTBEAT": ignore,
+        "STATUSTEXT": ignore,
+    }
 
 
 def episode_summary(log: EpisodeLog, control_period_s: float, task: str = "hover") -> dict:

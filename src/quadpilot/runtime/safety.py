@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .backends import Policy
+from .policy import Policy
 
 NUM_MOTORS = 4
 

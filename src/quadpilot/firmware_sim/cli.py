@@ -1,0 +1,234 @@
+"""`quad-sitl --sim-only` (and `python -m quadpilot.firmware_sim`): the simulator alone, from the
+command line. Flags map one to one onto `SimConfig` fields; a bad flag is one line on stderr and exit
+code 2, a simulator that cannot run (e.g. its port taken) one line and exit code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+
+from quadpilot.core.mission import TASKS
+from quadpilot.link.transport import SigningError, SimulatorError, parse_address, read_key
+
+from .config import DEFAULT_WIND_DRAG, SimConfig
+from .process import Simulator
+from .records import SimStats
+
+
+class UsageError(Exception):
+    """A bad flag: exit code 2 with one line on stderr."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        raise UsageError(message)
+
+
+def _wind(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(
+            f"expected three comma-separated numbers (m/s east,north,up), e.g. 2,0,0; got {text!r}"
+        )
+    return values  # type: ignore[return-value]
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return v
+
+
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number ≥ 0, got {text!r}")
+    return v
+
+
+def _int_at_least(lo: int):
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"must be ≥ {lo}, got {v}")
+        return v
+
+    return parse
+
+
+def _listen(text: str) -> str:
+    try:
+        parse_address(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
+def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentParser:
+    d = SimConfig()
+    p = _Parser(
+        prog=prog, description="Run only the simulator: core dynamics served over MAVLink like a PX4 simulator."
+    )
+    p.add_argument("--sim-only", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument(
+        "--listen", type=_listen, default=d.listen, help=f"tcp:HOST:PORT or udp:HOST:PORT (default {d.listen})"
+    )
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--lockstep", dest="lockstep", action="store_true", default=True, help="one step per actuator message (default)"
+    )
+    mode.add_argument("--realtime", dest="lockstep", action="store_false", help="one step per dt of wall-clock time")
+    p.add_argument("--vehicle", default=d.vehicle, help=f"airframe preset (default {d.vehicle})")
+    p.add_argument("--task", choices=TASKS, default=d.task, help="where episodes start (core.mission; default hover)")
+    p.add_argument("--mass-scale", type=_positive, default=d.mass_scale, help="multiplies the mass")
+    p.add_argument("--inertia-scale", type=_positive, default=d.inertia_scale, help="multiplies the inertias")
+    p.add_argument("--motor-scale", type=_positive, default=d.motor_scale, help="multiplies the thrust coefficient k_f")
+    p.add_argument("--motor-tau", type=_non_negative, default=None, metavar="S", help="motor time constant, s")
+    p.add_argument("--wind", type=_wind, default=d.wind, metavar="E,N,U", help="constant wind, m/s world ENU")
+    p.add_argument("--gust", type=_non_negative, default=d.gust, metavar="M/S", help="gust std per axis, m/s")
+    p.add_argument("--gust-tau", type=_positive, default=d.gust_tau_s, metavar="S", help="gust correlation time, s")
+    p.add_argument(
+        "--init-pos-radius", type=_non_negative, default=d.init_pos_radius, metavar="M", help="start ball radius"
+    )
+    p.add_argument("--init-vel", type=_non_negative, default=d.init_vel, metavar="M/S", help="start velocity range ±")
+    p.add_argument("--init-tilt", type=_non_negative, default=d.init_tilt_deg, metavar="DEG", help="start roll/pitch ±")
+    p.add_argument("--init-rate", type=_non_negative, default=d.init_rate, metavar="RAD/S", help="start body rates ±")
+    p.add_argument(
+        "--drag",
+        type=float,
+        default=None,
+        help=f"N·s/m linear drag (default: preset's, or {DEFAULT_WIND_DRAG} with wind)",
+    )
+    p.add_argument(
+        "--imu-noise",
+        action="store_true",
+        help="IMU noise (core.sensor_noise, the vehicle's IMU): white noise, turn-on bias and bias random walk",
+    )
+    p.add_argument(
+        "--estimator-noise",
+        action="store_true",
+        help="send ODOMETRY, the state as an EKF would output it (cm-level errors, core.sensor_noise); the "
+        "node flies on it, and is judged on the exact HIL_STATE_QUATERNION",
+    )
+    p.add_argument(
+        "--rate",
+        type=_positive,
+        default=1.0 / d.dt,
+        metavar="HZ",
+        help=f"simulation steps per second (default {1 / d.dt:g})",
+    )
+    p.add_argument("--seed", type=_int_at_least(0), default=d.seed, help="seed of the start states and the noise")
+    p.add_argument("--episodes", type=_int_at_least(1), default=None, help="serve this many connections, then exit")
+    p.add_argument("--gps-every", type=_int_at_least(1), default=d.gps_every, help="steps between HIL_GPS messages")
+    p.add_argument(
+        "--esc-timeout",
+        type=_positive,
+        default=d.esc_timeout_s,
+        help="s, motors cut after this long without a valid command",
+    )
+    p.add_argument(
+        "--lockstep-timeout", type=_positive, default=d.lockstep_timeout_s, help="s, an episode ends after this silence"
+    )
+    p.add_argument("--max-steps", type=_int_at_least(1), default=d.max_steps, help="step bound of one episode")
+    p.add_argument("--json", metavar="OUT", default=None, help="write the stats and episode records as JSON on exit")
+    p.add_argument(
+        "--key",
+        metavar="FILE",
+        default=None,
+        help="MAVLink 2 signing key (32 raw bytes or 64 hex digits): sign, and accept only signed messages",
+    )
+    return p
+
+
+def config_from_args(args: argparse.Namespace) -> SimConfig:
+    try:
+        return SimConfig(
+            listen=args.listen,
+            task=args.task,
+            vehicle=args.vehicle,
+            mass_scale=args.mass_scale,
+            inertia_scale=args.inertia_scale,
+            motor_scale=args.motor_scale,
+            motor_tau_s=args.motor_tau,
+            wind=args.wind,
+            gust=args.gust,
+            gust_tau_s=args.gust_tau,
+            init_pos_radius=args.init_pos_radius,
+            init_vel=args.init_vel,
+            init_tilt_deg=args.init_tilt,
+            init_rate=args.init_rate,
+            drag=args.drag,
+            imu_noise=args.imu_noise,
+            estimator_noise=args.estimator_noise,
+            dt=1.0 / args.rate,
+            seed=args.seed,
+            episodes=args.episodes,
+            gps_every=args.gps_every,
+            lockstep=args.lockstep,
+            esc_timeout_s=args.esc_timeout,
+            lockstep_timeout_s=args.lockstep_timeout,
+            max_steps=args.max_steps,
+            signing_key=read_key(args.key) if args.key else None,
+        )
+    except (ValueError, SigningError) as e:
+        raise UsageError(str(e)) from None
+
+
+def _write_stats(path: str, stats: SimStats) -> None:
+    import json
+
+    try:
+        with open(path, "w") as f:
+            json.dump(dataclasses.asdict(stats), f, indent=1)
+    except OSError as e:
+        print(f"quad-sitl: cannot write {path}: {e.strerror or e}", file=sys.stderr)
+
+
+def main_sim_only(argv: list[str] | None = None, prog: str = "quad-sitl") -> int:
+    """`quad-sitl --sim-only [...]`: serve episodes, one line per episode on stdout. Returns the
+    exit code: 0 done, 1 the simulator could not run (e.g. port taken), 2 bad flags, 130 Ctrl-C."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_sim_parser(f"{prog} --sim-only").parse_args(argv)
+        cfg = config_from_args(args)
+    except SystemExit as e:  # --help
+        return e.code if isinstance(e.code, int) else 0
+    except UsageError as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 2
+    sim = Simulator(cfg, on_episode=lambda r: print(r.summary(), flush=True))
+    try:
+        address = sim.bind()
+        mode = "lockstep" if cfg.lockstep else "realtime"
+        print(f"{prog}: simulator listening on {address} ({mode}, vehicle {cfg.vehicle}, seed {cfg.seed})", flush=True)
+        stats = sim.serve()
+    except SimulatorError as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"\n{prog}: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        sim.close()
+        if args.json:
+            _write_stats(args.json, sim.stats)
+    dropped = sum(stats.dropped.values())
+    print(f"{prog}: served {stats.episodes} episodes, {stats.steps} steps, dropped {dropped} packets", flush=True)
+    return 0

@@ -1,0 +1,246 @@
+"""The simulator process: `Simulator` listens, serves one episode per connection, and steps the
+plant in lockstep with the peer's actuator messages or on the host's clock.
+
+Per episode: the start state and the sensors' noise come from np.random.default_rng([seed,
+episode]); the step's messages go out (`protocol`), and then, in lockstep, the simulator waits for
+exactly one HIL_ACTUATOR_CONTROLS, applies it and advances the physics (`plant`) by one `dt`. In
+realtime mode it advances on the host's monotonic clock instead, holding the last command like an
+ESC and cutting the motors when valid commands stop.
+
+A dropped command (see `protocol`) in lockstep still counts as the peer's answer for the step (the
+peer is waiting for the next HIL_SENSOR: not stepping would stall both sides), and the motors keep
+their previous command. Only applied commands (armed and valid, or disarmed: motors 0) feed the ESC
+timeout: after `esc_timeout_s` without one (host clock in realtime, simulated time in lockstep) the
+motors are cut, so a stream of bad commands cannot keep the last good one alive.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from quadpilot.core import dynamics
+from quadpilot.core.reward import RewardConfig, crashed
+from quadpilot.link.transport import Address, Listener, PeerClosed
+
+from .config import SimConfig
+from .plant import Plant
+from .protocol import Protocol
+from .records import EpisodeRecord, EpisodeTally, SimStats
+from .sensors import Sensors
+
+log = logging.getLogger(__name__)
+
+POLL_S = 0.05
+"""s, longest a wait goes without looking at `stop()`."""
+
+
+class Simulator:
+    """Serves `SimConfig` episodes over MAVLink. `serve()` blocks (run it in a thread if need be)
+    and returns the stats; `stop()` ends it from any thread within about POLL_S."""
+
+    def __init__(self, cfg: SimConfig, on_episode: Callable[[EpisodeRecord], None] | None = None) -> None:
+        self.cfg = cfg
+        self.on_episode = on_episode
+        self.stats = SimStats()
+        self.listener = Listener(cfg.address)
+        self._stop = threading.Event()
+        self._reward = RewardConfig()
+        self._target = np.asarray(cfg.target, np.float64)
+        self._signing = None  # signing state carried from one episode's link to the next
+        self._io = Protocol(cfg, self.stats)
+        self._sensors: Sensors | None = None  # this episode's sensors (and noise processes)
+
+    @property
+    def address(self) -> Address | None:
+        """The bound address (with the real port when 0 was asked for); None before `bind()`."""
+        return self.listener.address
+
+    def bind(self) -> Address:
+        """Claim the listen address; SimulatorError if it cannot (e.g. it is in use)."""
+        if self.listener.sock is None:
+            self.listener.bind()
+            log.info("simulator listening on %s", self.listener.address)
+        return self.listener.address
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def close(self) -> None:
+        self.listener.close()
+
+    def __enter__(self) -> Simulator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+        self.close()
+
+    # --- serving ---------------------------------------------------------------------------
+    def serve(self) -> SimStats:
+        """Bind (if not yet), serve episodes one connection at a time until `cfg.episodes` are done
+        or `stop()` is called, close the sockets, and return the stats."""
+        cfg = self.cfg
+        try:
+            self.bind()
+            k = 0
+            while not self._stop.is_set() and (cfg.episodes is None or k < cfg.episodes):
+                link, early = self.listener.accept(POLL_S, self._stop.is_set)
+                for msg in early:  # UDP: what arrived before (and including) the first valid message
+                    if self._io.dispatch(msg, None) is not None:
+                        self._io.drop("before_first_state", None)
+                if link is None:
+                    break
+                if cfg.signing_key is not None:
+                    link.sign(cfg.signing_key, state=self._signing)
+                    self._signing = link.signing_state
+                try:
+                    record = self._run_episode(link, k)
+                finally:
+                    if cfg.address.protocol == "tcp":
+                        link.close()
+                    else:
+                        link.pin(None)  # the UDP socket stays; the next first sender is the next peer
+                self.stats.records.append(record)
+                self.stats.episodes += 1
+                log.info("%s", record.summary())
+                if self.on_episode is not None:
+                    self.on_episode(record)
+                k += 1
+        finally:
+            self.listener.close()
+        return self.stats
+
+    def _run_episode(self, link, k: int) -> EpisodeRecord:
+        cfg = self.cfg
+        ep = EpisodeTally(k, link.peer_label)
+        state0, rng = cfg.start_state(k)
+        plant = Plant(cfg.vehicle_params, cfg.dt, cfg.wind, cfg.gust, cfg.gust_tau_s, rng)
+        self._target = cfg.area_centre(k)
+        plant.reset(state0)  # (a gust draw) before the sensors' noise draws from the same generator
+        self._sensors = Sensors(cfg.sensor_noise, cfg.dt, rng, cfg.home.alt_m, cfg.imu_noise, cfg.estimator_noise)
+        n, wall0, end = 0, time.monotonic(), "max_steps"
+        try:
+            self._io.send_step(link, plant, 0, self._sensors)
+            run = self._lockstep if cfg.lockstep else self._realtime
+            n, end = run(link, plant, rng, ep)
+        except PeerClosed as e:
+            log.debug("episode %d: %s", k, e)
+            n, end = ep.steps_done, "peer_closed"
+        if hasattr(link, "foreign_datagrams"):  # UDP
+            self._io.count("foreign_peer", link.foreign_datagrams, ep)
+            self._io.count("truncated_datagram", link.truncated_datagrams, ep)
+            self._io.count("oversized_datagram", link.oversized_datagrams, ep)
+            link.foreign_datagrams = link.truncated_datagrams = link.oversized_datagrams = 0
+        err = float(np.linalg.norm(plant.state[0:3] - self._target))
+        jitter = None
+        if len(ep.step_times) > 2:
+            dev = np.abs(np.diff(ep.step_times) - cfg.dt) * 1e3
+            jitter = (float(np.percentile(dev, 50)), float(np.percentile(dev, 99)), float(dev.max()))
+        return EpisodeRecord(
+            index=k,
+            peer=ep.peer,
+            steps=n,
+            sim_time_s=n * cfg.dt,
+            wall_time_s=time.monotonic() - wall0,
+            end_reason=end,
+            crashed=ep.first_crash_step is not None,
+            first_crash_step=ep.first_crash_step,
+            final_pos_error_m=err,
+            initial_state=tuple(float(v) for v in state0),
+            final_state=tuple(float(v) for v in plant.state),
+            dropped=dict(ep.dropped),
+            esc_timeouts=ep.esc_timeouts,
+            commands=ep.commands,
+            esc_cut_silence_s=ep.esc_cut_silence_s,
+            period_jitter_ms=jitter,
+            overruns=ep.overruns,
+            rate_limited_steps=plant.rate_limited_steps,
+        )
+
+    def _advance(self, link, plant: Plant, command: np.ndarray, n: int, rng, ep: EpisodeTally) -> int:
+        """Step the plant once, send the next step's messages, then note a crash (after the send:
+        the peer computes its answer meanwhile); returns the new step."""
+        plant.step(command)
+        n += 1
+        ep.steps_done = n
+        self.stats.steps += 1
+        self._io.send_step(link, plant, n, self._sensors)
+        if ep.first_crash_step is None:
+            s = plant.state[None]
+            if crashed(s, s[:, 0:3] - self._target, self._reward)[0]:
+                ep.first_crash_step = n
+        return n
+
+    def _lockstep(self, link, plant: Plant, rng, ep: EpisodeTally) -> tuple[int, str]:
+        cfg = self.cfg
+        held = plant.rotor.copy()  # a bad first command keeps the start's hover speed
+        n = ep.steps_done = 0
+        last_valid = 0  # step of the last applied command; the ESC timeout runs on simulated time here
+        cut = False
+        while n < cfg.max_steps:
+            deadline = time.monotonic() + cfg.lockstep_timeout_s
+            msg = None
+            while msg is None:
+                if self._stop.is_set():
+                    return n, "stopped"
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return n, "lockstep_timeout"
+                msg = self._io.receive(link, min(left, POLL_S), ep)
+            command = self._io.command(msg, ep)  # a dropped one still answers the step: the peer waits
+            if command is not None:
+                held, last_valid, cut = command, n, False
+            elif not cut and (n - last_valid) * cfg.dt > cfg.esc_timeout_s:
+                cut, held = True, np.zeros(dynamics.NUM_MOTORS)
+                self._esc_cut(ep, (n - last_valid) * cfg.dt)
+            n = self._advance(link, plant, held, n, rng, ep)
+        return n, "max_steps"
+
+    def _realtime(self, link, plant: Plant, rng, ep: EpisodeTally) -> tuple[int, str]:
+        cfg = self.cfg
+        held = plant.rotor.copy()  # the vehicle starts flying at hover until the first command
+        n = ep.steps_done = 0
+        last_message = last_valid = time.monotonic()
+        cut = False
+        tick = last_message + cfg.dt
+        while n < cfg.max_steps:
+            while True:  # take messages until this step's deadline
+                if self._stop.is_set():
+                    return n, "stopped"
+                left = tick - time.monotonic()
+                if left <= 0:
+                    break
+                msg = self._io.receive(link, min(left, POLL_S), ep)
+                if msg is not None:
+                    last_message = time.monotonic()
+                    command = self._io.command(msg, ep)
+                    if command is not None:  # only an applied command feeds the ESC timeout
+                        held, last_valid, cut = command, last_message, False
+            now = time.monotonic()
+            if now - last_message > cfg.lockstep_timeout_s:
+                return n, "peer_silent"
+            silent = now - last_valid
+            if not cut and silent > cfg.esc_timeout_s:
+                cut, held = True, np.zeros(dynamics.NUM_MOTORS)
+                self._esc_cut(ep, silent)
+            ep.step_times.append(time.monotonic())
+            n = self._advance(link, plant, held, n, rng, ep)
+            tick += cfg.dt
+            if time.monotonic() - tick > cfg.dt:  # more than a step behind: do not burst to catch up
+                self.stats.overruns += 1
+                ep.overruns += 1
+                tick = time.monotonic() + cfg.dt
+        return n, "max_steps"
+
+    def _esc_cut(self, ep: EpisodeTally, silent: float) -> None:
+        """The ESCs saw no valid command for `silent` s (more than esc_timeout_s): motors cut, counted."""
+        ep.esc_timeouts += 1
+        if ep.esc_cut_silence_s is None:
+            ep.esc_cut_silence_s = silent
+        self.stats.esc_timeouts += 1
+        log.info("episode %d: no valid actuator command for %.3f s, motors cut", ep.index, silent)
