@@ -8,6 +8,11 @@ dropped packets. With no policy it flies the shipped hover model.
 Each side also runs alone: `quad-sitl --sim-only [--listen tcp:127.0.0.1:4560]` serves the
 simulator until stopped; `quad-sitl POLICY.onnx --node-only --connect tcp:127.0.0.1:4560` flies a
 simulator that listens there.
+
+Exit codes: 0 flown; 1 a file that cannot be used (a policy or signing key that fails its checks),
+the simulator did not start, or the link failed; 2 a bad flag (including a path that does not exist,
+is of the wrong kind, or cannot be written); 130 interrupted; 143 terminated (SIGTERM). Every flag
+is checked before the simulator starts, and the simulator process never outlives this one.
 """
 
 from __future__ import annotations
@@ -15,20 +20,75 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import re
+import signal
 import socket
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
 SHIPPED_HOVER = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"
+MAX_EPISODES = 100_000
+MAX_DURATION_S = 3600.0  # an hour of 100 Hz flight is 360 000 logged steps per episode
+# A flag value that starts with "-" and a digit is a value (--wind -0.9,0,0), not an unknown
+# option; argparse's own pattern admits only plain numbers like -1 or -.5.
+NEGATIVE_VALUE = re.compile(r"^-\.?\d")
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_VALUE
+
     def error(self, message: str):
         print(f"quad-sitl: error: {message}", file=sys.stderr)
         raise SystemExit(2)
+
+
+def check_output_path(path: Path, flag: str, *, directory: bool = False) -> None:
+    """Raise ValueError (one line naming `flag`) unless `path` can be written: a file whose parent
+    directory exists and takes a new file, not an existing directory (`directory`: a directory that
+    exists, or whose parent does, and takes a new file). Checked before any work, so that a run is
+    not lost to an output it cannot write at the end; a probe file is created and removed, since
+    permission bits do not tell (root ignores them, /proc and /sys refuse anyway)."""
+    if not str(path):
+        raise ValueError(f"{flag}: empty path")
+    if directory:
+        if path.exists() and not path.is_dir():
+            raise ValueError(f"{flag} {path}: exists and is not a directory (--format c writes a directory)")
+        where = path if path.is_dir() else path.parent
+    else:
+        if path.is_dir():
+            raise ValueError(f"{flag} {path}: is a directory; expected a file name")
+        where = path.parent
+    if not where.is_dir():
+        raise ValueError(f"{flag} {path}: directory {where} does not exist")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".quadpilot-write-check-", dir=where)
+    except OSError as e:
+        raise ValueError(f"{flag} {path}: cannot write in {where} ({e.strerror or e})") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """`--flag -0.9,0,0` as `--flag=-0.9,0,0`, for a parser that would take the value for an
+    option (the simulator's, which --sim-only hands the command line to)."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        tok = argv[i]
+        if tok.startswith("--") and "=" not in tok and i + 1 < len(argv) and NEGATIVE_VALUE.match(argv[i + 1]):
+            out.append(f"{tok}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(tok)
+            i += 1
+    return out
 
 
 def _free_port() -> int:
@@ -54,19 +114,65 @@ SIM_FLAGS = {
 }
 
 
+def _int_in(lo: int, hi: int):
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected {lo} to {hi:,}, got {v:,}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def _seconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not (math.isfinite(v) and 0 < v <= MAX_DURATION_S):
+        raise argparse.ArgumentTypeError(f"expected seconds > 0 and ≤ {MAX_DURATION_S:g}, got {text!r}")
+    return v
+
+
+def _address(flag: str, *, port_zero: bool = False, none: bool = False):
+    """An argparse type for a MAVLink address tcp:HOST:PORT or udp:HOST:PORT (`none`: also 'none')."""
+
+    def parse(text: str) -> str:
+        from quadpilot.link.transport import parse_address
+
+        if none and text.lower() == "none":
+            return text
+        try:
+            address = parse_address(text, flag)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e).removeprefix(f"{flag} ")) from None
+        if address.port == 0 and not port_zero:
+            raise argparse.ArgumentTypeError(f"{text!r}: port 0 names no peer; expected the port it listens on")
+        return text
+
+    parse.__name__ = "address"
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("policy", nargs="?", type=Path, help=f"ONNX file from quad-export. Default: {SHIPPED_HOVER}")
-    p.add_argument("--episodes", type=int, default=10, metavar="N", help="Episodes to fly. Default: 10")
+    p.add_argument(
+        "--episodes", type=_int_in(1, MAX_EPISODES), default=10, metavar="N", help="Episodes to fly. Default: 10"
+    )
     p.add_argument("--task", choices=("hover", "waypoint", "circle"), help="What to fly. Default: the policy's task.")
     p.add_argument(
         "--duration",
-        type=float,
+        type=_seconds,
         default=None,
         metavar="S",
         help="Seconds per episode. Default: 5 (circle: two laps, 12.6 s; success is judged on the second)",
     )
-    p.add_argument("--seed", type=int, default=0, help="Seed of the start states. Default: 0")
+    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="Seed of the start states. Default: 0")
     p.add_argument("--backend", choices=("onnxruntime", "numpy", "c"), default="numpy", help="Default: numpy")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True, help="(default)")
@@ -74,9 +180,14 @@ def build_parser() -> argparse.ArgumentParser:
     # handled before parsing (main_sim_only has its own flags); listed here for --help
     p.add_argument("--sim-only", action="store_true", help="Serve the simulator only (see above).")
     p.add_argument("--node-only", action="store_true", help="Run the node only, against --connect.")
-    p.add_argument("--connect", default=None, help="Simulator address for --node-only (tcp:HOST:PORT).")
     p.add_argument(
-        "--listen", default=None, help="Where the simulator listens (tcp:HOST:PORT). Default: a free loopback port."
+        "--connect", type=_address("--connect"), default=None, help="Simulator address for --node-only (tcp:HOST:PORT)."
+    )
+    p.add_argument(
+        "--listen",
+        type=_address("--listen", port_zero=True),
+        default=None,
+        help="Where the simulator listens (tcp:HOST:PORT). Default: a free loopback port.",
     )
     p.add_argument("--json", type=Path, metavar="OUT", help="Write the summary as JSON.")
     p.add_argument(
@@ -90,6 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--gcs",
+        type=_address("--gcs", none=True),
         default="udp:127.0.0.1:14550",
         metavar="ADDR",
         help="Ground-station telemetry destination (QGroundControl/MAVProxy listen on UDP 14550); 'none': off. "
@@ -117,32 +229,100 @@ def _sim_args(args: argparse.Namespace) -> list[str]:
         if metavar is None and value:
             out.append(flag)
         elif metavar is not None and value is not None:
-            out += [flag, value]
+            out.append(f"{flag}={value}")  # one token: a value like -0.9,0,0 is not taken for an option
     return out
+
+
+def _die_with_parent():
+    """A preexec_fn (Linux) that has the kernel SIGKILL the simulator when quad-sitl dies, however
+    it dies (prctl(2) PR_SET_PDEATHSIG): the second net under `_Simulator.stop` in a finally, for a
+    kill -9 that runs no Python. None elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up here: the child only calls it
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+    pr_set_pdeathsig = 1  # <linux/prctl.h>
+
+    def child() -> None:
+        prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before the prctl took effect
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    return child
+
+
+class _Simulator:
+    """The simulator process (`python -m quadpilot.firmware_sim`), started so that it dies with
+    this one: `stop()` in a finally on every exit path, and PR_SET_PDEATHSIG for the paths that run
+    no Python (kill -9)."""
+
+    def __init__(self, cmd: list[str]) -> None:
+        self.proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_die_with_parent()
+        )
+        self._drains: list = []
+
+    def wait_listening(self, timeout_s: float) -> tuple[bool, str]:
+        """(True, address it listens on) once it says so; (False, why not) if it exits first (e.g.
+        its port is taken) or stays silent for `timeout_s`."""
+        import select
+        import threading
+
+        proc = self.proc
+        ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
+        line = proc.stdout.readline() if ready else ""
+        if "listening on" not in line:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait()
+            err = proc.stderr.read().strip()  # it has exited: its last words are all there
+            self._close_pipes()
+            last = err.splitlines()[-1] if err else f"no answer within {timeout_s:g} s"
+            return False, last.removeprefix("quad-sitl: error: ")
+
+        def drain(stream):  # per-episode lines: read them so the pipe never fills and blocks it
+            for _ in stream:
+                pass
+
+        for stream in (proc.stdout, proc.stderr):
+            t = threading.Thread(target=drain, args=(stream,), daemon=True)
+            t.start()
+            self._drains.append(t)
+        return True, line.split("listening on ", 1)[1].split()[0]
+
+    def stop(self) -> None:
+        """Terminate it (SIGTERM, then SIGKILL after 5 s) and wait for it; idempotent."""
+        proc = self.proc
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        for t in self._drains:
+            t.join(timeout=1)
+        if not self._drains or not any(t.is_alive() for t in self._drains):
+            self._close_pipes()
+
+    def _close_pipes(self) -> None:
+        for stream in (self.proc.stdout, self.proc.stderr):
+            if stream is not None and not stream.closed:
+                stream.close()
 
 
 def _start_simulator(cmd: list[str], timeout_s: float = 30.0):
     """Start the simulator process and wait until it listens: (process, address it listens on),
-    or (None, why not) if it exits first (e.g. its port is taken) or stays silent for `timeout_s`."""
-    import select
-    import threading
-
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
-    line = proc.stdout.readline() if ready else ""
-    if "listening on" not in line:
-        proc.kill()
-        err = proc.stderr.read().strip() if proc.wait(5) is not None else ""
-        last = err.splitlines()[-1] if err else f"no answer within {timeout_s:g} s"
-        return None, last.removeprefix("quad-sitl: error: ")
-
-    def drain(stream):  # per-episode lines: read them so the pipe never fills and blocks it
-        for _ in stream:
-            pass
-
-    threading.Thread(target=drain, args=(proc.stdout,), daemon=True).start()
-    threading.Thread(target=drain, args=(proc.stderr,), daemon=True).start()
-    return proc, line.split("listening on ", 1)[1].split()[0]
+    or (None, why not) if it exits first (e.g. its port is taken) or stays silent for `timeout_s`.
+    It dies with this process (see `_Simulator`)."""
+    sim = _Simulator(cmd)
+    ok, what = sim.wait_listening(timeout_s)
+    return (sim.proc, what) if ok else (None, what)
 
 
 def summarise(logs, period: float, task: str = "hover") -> dict:
@@ -200,74 +380,73 @@ def print_summary(s: dict, policy: Path) -> None:
     print(f"  failsafes {s['failsafe_events']}, fallback steps {s['fallback_steps']}, packets dropped: {dropped}")
 
 
+class _Terminated(BaseException):
+    """SIGTERM arrived: unwind (every finally runs, the simulator is stopped) and exit 143. A
+    BaseException, like KeyboardInterrupt, so that no `except Exception` on the way swallows it."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated
+
+
+def _bad_flag(message: str) -> int:
+    print(f"quad-sitl: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _bad_file(message: str) -> int:
+    print(f"quad-sitl: error: {message}", file=sys.stderr)
+    return 1
+
+
+def _check_input_file(path: Path, what: str) -> str | None:
+    """Why `path` cannot be an input file (missing, a directory), or None."""
+    if not str(path):
+        return f"{what}: empty path"
+    if path.is_dir():
+        return f"{path}: is a directory; expected {what}"
+    if not path.exists():
+        return f"{path}: does not exist; expected {what}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     if "--sim-only" in argv:
         from quadpilot.firmware_sim.sim import main_sim_only
 
-        return main_sim_only(argv)
+        return main_sim_only(_join_negative_values(argv))
     try:
         args = p.parse_args(argv)
     except SystemExit as e:
         return e.code if isinstance(e.code, int) else 0
+    # every flag is checked here, before anything starts: nothing below refuses a flag
     rest = _sim_args(args)
     if rest:  # the simulator's own flags (--mass-scale, --wind, --imu-noise, ...): checked here, passed on
         from quadpilot.firmware_sim.sim import UsageError, build_sim_parser, config_from_args
 
+        if args.node_only:
+            return _bad_flag(f"{' '.join(rest)}: simulator flags, but --node-only runs no simulator")
         try:
             config_from_args(build_sim_parser("quad-sitl").parse_args(rest))  # the same checks as the simulator's
         except UsageError as e:
-            print(f"quad-sitl: error: {e}", file=sys.stderr)
-            return 2
-        if args.node_only:
-            print(
-                f"quad-sitl: error: {' '.join(rest)}: simulator flags, but --node-only runs no simulator",
-                file=sys.stderr,
-            )
-            return 2
-    if args.episodes < 1 or not (args.duration is None or args.duration > 0):
-        print("quad-sitl: error: --episodes must be ≥ 1 and --duration > 0", file=sys.stderr)
-        return 2
-    from quadpilot.runtime import ModelContractError, SafetyMonitor, load_policy
-    from quadpilot.runtime.node import Node, NodeConfig, NodeError
-
-    policy_path = args.policy or SHIPPED_HOVER
-    try:
-        policy = load_policy(policy_path, args.backend)
-    except (ModelContractError, ValueError) as e:
-        print(f"quad-sitl: error: {e}", file=sys.stderr)
-        return 2
-    from quadpilot.core.mission import default_duration_s, plan_episode
-    from quadpilot.core.observation import TRACK_LAYOUT
-
-    task = args.task or policy.info.task
-    if (task == "circle") != (policy.info.layout.name == TRACK_LAYOUT.name):
-        print(
-            f"quad-sitl: error: {policy_path} observes the {policy.info.layout.name} layout "
-            f"({policy.info.task} policy); --task {task} needs "
-            + (
-                "a circle (track layout) policy, e.g. models/circle/policy.onnx"
-                if task == "circle"
-                else "a hover-layout policy"
-            ),
-            file=sys.stderr,
-        )
-        return 2
-    duration = args.duration or default_duration_s(task)
-    key = None
-    if args.key is not None:
-        from quadpilot.link.transport import SigningError, read_key
-
-        try:
-            key = read_key(args.key)
-        except SigningError as e:
-            print(f"quad-sitl: error: {e}", file=sys.stderr)
-            return 2
-    for out in (args.json, args.plot, args.video, args.tlog):
-        if out is not None and not out.parent.is_dir():
-            print(f"quad-sitl: error: {out}: directory {out.parent} does not exist", file=sys.stderr)
-            return 2
+            return _bad_flag(str(e))
+    if args.node_only and not args.connect:
+        return _bad_flag("--node-only needs --connect tcp:HOST:PORT")
+    if args.connect and not args.node_only:
+        return _bad_flag("--connect is for --node-only; without it quad-sitl starts its own simulator (--listen)")
+    policy_path = args.policy if args.policy is not None else SHIPPED_HOVER
+    for path, what in ((policy_path, "an ONNX policy file from quad-export"), (args.key, "a signing key file")):
+        if path is not None and (why := _check_input_file(path, what)) is not None:
+            return _bad_flag(why)
+    outputs = {"--json": args.json, "--plot": args.plot, "--video": args.video, "--tlog": args.tlog}
+    for flag, out in outputs.items():
+        if out is not None:
+            try:
+                check_output_path(out, flag)
+            except ValueError as e:
+                return _bad_flag(str(e))
     if args.plot is not None or args.video is not None:  # refuse before flying, not after
         from quadpilot.viz import VizUnavailable, check_plot_output, check_video_output
 
@@ -277,60 +456,118 @@ def main(argv: list[str] | None = None) -> int:
             if args.video is not None:
                 check_video_output(args.video)
         except (ValueError, VizUnavailable) as e:
-            print(f"quad-sitl: error: {e}", file=sys.stderr)
-            return 2
+            return _bad_flag(str(e))
+    from quadpilot.runtime import ModelContractError, load_policy
+
+    try:
+        policy = load_policy(policy_path, args.backend)
+    except ModelContractError as e:  # the file fails its contract
+        return _bad_file(str(e))
+    except ValueError as e:  # the backend cannot run here (e.g. --backend c without a C compiler)
+        return _bad_flag(str(e))
+    from quadpilot.core.observation import TRACK_LAYOUT
+
+    task = args.task or policy.info.task
+    if (task == "circle") != (policy.info.layout.name == TRACK_LAYOUT.name):
+        return _bad_flag(
+            f"{policy_path} observes the {policy.info.layout.name} layout "
+            f"({policy.info.task} policy); --task {task} needs "
+            + (
+                "a circle (track layout) policy, e.g. models/circle/policy.onnx"
+                if task == "circle"
+                else "a hover-layout policy"
+            )
+        )
+    key = None
+    if args.key is not None:
+        from quadpilot.link.transport import SigningError, read_key
+
+        try:
+            key = read_key(args.key)
+        except SigningError as e:
+            return _bad_file(str(e))
+    old = signal.signal(signal.SIGTERM, _on_sigterm) if _in_main_thread() else None
+    try:
+        return _fly(args, rest, policy, policy_path, task, key)
+    except _Terminated:
+        print("quad-sitl: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    except KeyboardInterrupt:  # before the first episode (during one, _fly summarises what was flown)
+        print("\nquad-sitl: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+
+
+def _in_main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes | None) -> int:
+    """Start the simulator (unless --node-only), fly, summarise. The simulator is stopped on every
+    way out of here (return, exception, Ctrl-C, SIGTERM via `_Terminated`)."""
+    from quadpilot.core.mission import default_duration_s, plan_episode
+    from quadpilot.runtime import SafetyMonitor
+    from quadpilot.runtime.node import Node, NodeConfig, NodeError
+
+    duration = args.duration or default_duration_s(task)
     monitor = SafetyMonitor(policy)
     sim = None
-    if args.node_only:
-        if not args.connect:
-            print("quad-sitl: error: --node-only needs --connect tcp:HOST:PORT", file=sys.stderr)
-            return 2
-        address = args.connect
-    else:
-        listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
-        cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", listen]
-        cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed), "--task", task]
-        cmd += ["--lockstep" if args.lockstep else "--realtime", *rest]
-        if args.key is not None:
-            cmd += ["--key", str(args.key)]
-        sim, address = _start_simulator(cmd)
-        if sim is None:
-            print(f"quad-sitl: error: the simulator did not start: {address}", file=sys.stderr)
-            return 1
-    gcs = None if args.gcs.lower() == "none" else args.gcs
-    node = Node(NodeConfig(connect=address, duration_s=duration, lockstep=args.lockstep, gcs=gcs, signing_key=key))
     tlog = None
-    if args.tlog is not None:
-        from quadpilot.link.tlog import TlogWriter
-
-        tlog = TlogWriter(args.tlog)
     logs = []
     try:
-        for k in range(args.episodes):
-            mission = plan_episode(task, args.seed, k, policy.info.control_period_s)
-            logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap, targets=mission.target_at))
-    except NodeError as e:
-        print(f"quad-sitl: error: {e}", file=sys.stderr)
+        if args.node_only:
+            address = args.connect
+        else:
+            listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
+            cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", listen]
+            cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed), "--task", task]
+            cmd += ["--lockstep" if args.lockstep else "--realtime", *rest]
+            if args.key is not None:
+                cmd += ["--key", str(args.key)]
+            sim = _Simulator(cmd)
+            ok, address = sim.wait_listening(30.0)
+            if not ok:
+                print(f"quad-sitl: error: the simulator did not start: {address}", file=sys.stderr)
+                return 1
+        gcs = None if args.gcs.lower() == "none" else args.gcs
+        node = Node(NodeConfig(connect=address, duration_s=duration, lockstep=args.lockstep, gcs=gcs, signing_key=key))
+        if args.tlog is not None:
+            from quadpilot.link.tlog import TlogWriter
+
+            tlog = TlogWriter(args.tlog)
+        try:
+            for k in range(args.episodes):
+                mission = plan_episode(task, args.seed, k, policy.info.control_period_s)
+                logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap, targets=mission.target_at))
+        except NodeError as e:
+            print(f"quad-sitl: error: {e}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            print("quad-sitl: interrupted; summary of the episodes flown so far", file=sys.stderr)
+    except OSError as e:  # an output that could be written a moment ago cannot now (disk full, removed)
+        print(f"quad-sitl: error: {e.filename + ': ' if e.filename else ''}{e.strerror or e}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("quad-sitl: interrupted; summary of the episodes flown so far", file=sys.stderr)
     finally:
         if tlog is not None:
             tlog.close()
         if sim is not None:
-            sim.terminate()
-            try:
-                sim.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                sim.kill()
+            sim.stop()
     summary = summarise(logs, policy.info.control_period_s, task)
     summary["task"] = task
     summary["policy"] = str(policy_path)
     summary["backend"] = args.backend
     summary["monitor_events"] = dict(monitor.events)
     print_summary(summary, policy_path)
-    if args.json:
-        args.json.write_text(json.dumps(summary, indent=2) + "\n")
+    try:
+        if args.json:
+            args.json.write_text(json.dumps(summary, indent=2) + "\n")
+    except OSError as e:
+        print(f"quad-sitl: error: {args.json}: {e.strerror or e}", file=sys.stderr)
+        return 1
     if tlog is not None:
         print(f"  MAVLink log             {args.tlog} ({tlog.messages:,} messages; read it with mavlogdump.py)")
     return _draw(args, logs, policy.info.control_period_s)

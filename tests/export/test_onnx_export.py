@@ -101,10 +101,10 @@ def test_cli_writes_reports_and_refuses_bad_files(tmp_path, capsys):
     assert out.is_file() and "onnx.checker: ok" in text and "parity within 1e-05: ok" in text
     garbage = tmp_path / "garbage.pt"
     garbage.write_bytes(b"not a checkpoint at all")
-    assert main([str(garbage)]) == 2
+    assert main([str(garbage)]) == 1  # a bad file
     err = capsys.readouterr().err
     assert "garbage.pt" in err and "a quadpilot checkpoint" in err and "Traceback" not in err
-    assert main([str(tmp_path / "missing.pt")]) == 2
+    assert main([str(tmp_path / "missing.pt")]) == 2  # a bad argument: no such file
 
 
 # --- the recurrent variant and the normalised MLP -------------------------------------------

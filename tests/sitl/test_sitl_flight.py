@@ -121,7 +121,7 @@ def test_quad_sitl_flies_the_waypoint_and_circle_policies(task, episodes, tmp_pa
 def test_quad_sitl_refuses_a_bad_policy_file(tmp_path, capsys):
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"\x00" * 100)
-    assert main([str(bad), "--episodes", "1"]) == 2
+    assert main([str(bad), "--episodes", "1"]) == 1  # a file that exists but is not a policy: exit 1 (a bad flag is 2)
     err = capsys.readouterr().err
     assert "bad.onnx" in err and "Traceback" not in err
 

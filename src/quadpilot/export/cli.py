@@ -11,21 +11,65 @@ directory with policy.c (weights as static const float arrays, no heap, libm onl
 (the entry point, the observation layout and the output convention). It is generated from the
 ONNX file exported first, and compiled with the system C compiler (if there is one) for the
 parity check.
+
+Exit codes: 0 written and parity within tolerance; 1 the checkpoint cannot be used (malformed,
+truncated, not a quadpilot checkpoint), or the export or its parity check failed; 2 a bad flag
+(including a checkpoint path that does not exist or an output that cannot be written).
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
 PARITY_TOLERANCE = 1e-5  # max abs difference in motor command (the export issue's bar)
+MAX_PARITY_SAMPLES = 1_000_000  # ~70 MB of observations; the default 10 000 takes seconds
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # "-1" after --opset is a (bad) value, not an unknown option; see train.cli._Parser
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
     def error(self, message: str):
         print(f"quad-export: error: {message}", file=sys.stderr)
         raise SystemExit(2)
+
+
+class _BadFlag(Exception):
+    """A flag value refused after parsing: exit code 2, one line."""
+
+
+def _check_args(args) -> Path:
+    """Refuse bad flag values before anything is loaded; returns the output path."""
+    from quadpilot.sitl import check_output_path
+
+    from .onnx_export import OpsetError, check_opset
+
+    try:
+        check_opset(args.opset)
+    except OpsetError as e:
+        raise _BadFlag(f"--opset {args.opset}: {e}") from None
+    if not 2 <= args.parity_samples <= MAX_PARITY_SAMPLES:
+        raise _BadFlag(f"--parity-samples must be in 2..{MAX_PARITY_SAMPLES:,}, got {args.parity_samples:,}")
+    ckpt = args.checkpoint
+    if not ckpt.is_file():
+        what = "is a directory" if ckpt.is_dir() else "does not exist"
+        raise _BadFlag(f"{ckpt}: {what}; expected policy.pt (or checkpoint.pt) written by quad-train")
+    if args.format == "c":
+        out = args.output or ckpt.with_name(f"{ckpt.stem}_c")
+    else:
+        out = args.output or ckpt.with_suffix(".onnx")
+    try:
+        check_output_path(out, "--output", directory=args.format == "c")
+    except ValueError as e:
+        raise _BadFlag(str(e)) from None
+    if out.resolve() == ckpt.resolve():
+        raise _BadFlag(f"--output {out} is the checkpoint itself; name another file")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,34 +90,58 @@ def main(argv: list[str] | None = None) -> int:
         default="onnx",
         help="onnx: an ONNX file with metadata. c: C99 source and header for a microcontroller. Default: onnx",
     )
-    p.add_argument("--opset", type=int, default=DEFAULT_OPSET, help=f"ONNX opset version. Default: {DEFAULT_OPSET}")
+    p.add_argument(
+        "--opset",
+        type=int,
+        default=DEFAULT_OPSET,
+        help=f"ONNX operator set version, one the exporter writes exactly and the runtime checks "
+        f"(quadpilot.export.onnx_export.supported_opsets). Default: {DEFAULT_OPSET}",
+    )
     p.add_argument(
         "--parity-samples",
         type=int,
         default=10_000,
         metavar="N",
-        help="Observations for the parity check (half rollouts, half range edges). Default: 10000",
+        help=f"Observations for the parity check (half rollouts, half range edges), 2 to {MAX_PARITY_SAMPLES:,}. "
+        "Default: 10000",
     )
     try:
         args = p.parse_args(argv)
     except SystemExit as e:
         return e.code if isinstance(e.code, int) else 0
-    if args.parity_samples < 2:
-        print("quad-export: error: --parity-samples must be ≥ 2", file=sys.stderr)
-        return 2
-    if args.format == "c":
-        return _main_c(args)
-    out = args.output or args.checkpoint.with_suffix(".onnx")
-
-    from quadpilot.train.checkpoint import CheckpointError
-
-    from .onnx_export import check_parity, export_onnx
-
     try:
-        meta = export_onnx(args.checkpoint, out, args.opset)
-    except (CheckpointError, OSError) as e:
+        out = _check_args(args)
+    except _BadFlag as e:
         print(f"quad-export: error: {e}", file=sys.stderr)
         return 2
+    try:
+        return _main_c(args, out) if args.format == "c" else _main_onnx(args, out)
+    except Exception as e:  # one line, exit 1, for what the checks let through (see _failure)
+        message = _failure(e)
+        if message is None:
+            raise
+        print(f"quad-export: error: {message}", file=sys.stderr)
+        return 1
+
+
+def _failure(e: Exception) -> str | None:
+    """The one-line message for an export that failed on its input or its output, None for a bug."""
+    from quadpilot.runtime.model import ModelContractError
+    from quadpilot.train.checkpoint import CheckpointError
+
+    if isinstance(e, (CheckpointError, ModelContractError)):
+        return str(e)
+    if isinstance(e, OSError):
+        return f"{e.filename + ': ' if e.filename else ''}{e.strerror or e}"
+    if isinstance(e, RuntimeError) and "operator set" in str(e):  # export_onnx's opset check
+        return str(e)
+    return None
+
+
+def _main_onnx(args, out: Path) -> int:
+    from .onnx_export import check_parity, export_onnx
+
+    meta = export_onnx(args.checkpoint, out, args.opset)
     print(
         f"quad-export: wrote {out} ({out.stat().st_size / 1024:.1f} KiB; task {meta['quadpilot.task']}, "
         f"{int(meta['quadpilot.training_steps']):,} training steps, opset {args.opset}); onnx.checker: ok"
@@ -98,29 +166,17 @@ def _report_parity(parity: dict) -> int:
     return 0
 
 
-def _main_c(args) -> int:
+def _main_c(args, out: Path) -> int:
     import tempfile
 
     from quadpilot.runtime.cbackend import CCompilerError, CPolicy, build_library
-    from quadpilot.runtime.model import ModelContractError
-    from quadpilot.train.checkpoint import CheckpointError
 
     from .c_export import export_c
     from .onnx_export import check_parity
 
-    out = args.output or args.checkpoint.with_name(f"{args.checkpoint.stem}_c")
-    if out.exists() and not out.is_dir():
-        print(
-            f"quad-export: error: {out} exists and is not a directory (--format c writes a directory)", file=sys.stderr
-        )
-        return 2
     with tempfile.TemporaryDirectory(prefix="quad-export-") as tmp:
         onnx_path = Path(tmp) / "policy.onnx"
-        try:
-            exported = export_c(args.checkpoint, out, args.opset, onnx_path=onnx_path)
-        except (CheckpointError, ModelContractError, OSError) as e:
-            print(f"quad-export: error: {e}", file=sys.stderr)
-            return 2
+        exported = export_c(args.checkpoint, out, args.opset, onnx_path=onnx_path)
         info, net = exported.info, exported.code.network
         weights = sum(a.size for a in net.arrays().values())
         print(

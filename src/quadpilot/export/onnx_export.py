@@ -37,6 +37,39 @@ from quadpilot.train.envs import QuadBatch
 ONNX_SCHEMA = "quadpilot.onnx/1"
 INPUT, OUTPUT = "obs", "action"
 DEFAULT_OPSET = 18
+NATIVE_OPSET = 18
+"""The operator set torch's exporter implements (torch/onnx/_internal/exporter/_constants.py,
+TORCHLIB_OPSET). Below it the exporter runs the ONNX version converter, which on our graphs either
+fails (the LSTM's Split has no num_outputs before 18) or gives up and leaves the file at 18 with no
+error, so a lower request would silently get another opset."""
+
+
+class OpsetError(ValueError):
+    """An operator set version quad-export cannot write; the message says which it can."""
+
+
+def supported_opsets() -> range:
+    """The operator set versions `export_onnx` writes exactly: from the exporter's native one to
+    the newest that both the runtime checks graphs for (`runtime.model.OPSETS`) and the installed
+    onnx package defines (above that the exporter silently falls back to 18)."""
+    import onnx
+
+    from quadpilot.runtime.model import OPSETS
+
+    return range(max(NATIVE_OPSET, OPSETS.start), min(OPSETS.stop, onnx.defs.onnx_opset_version() + 1))
+
+
+def check_opset(opset: object) -> int:
+    """`opset` if quad-export can write it; OpsetError naming the accepted range otherwise."""
+    ok = supported_opsets()
+    if isinstance(opset, bool) or not isinstance(opset, int) or opset not in ok:
+        raise OpsetError(
+            f"operator set {opset!r} is not one quad-export writes; expected {ok.start} to {ok.stop - 1} "
+            f"(default {DEFAULT_OPSET})"
+        )
+    return opset
+
+
 ACTION_MEANING = (
     "normalised rotor speed omega/omega_max in [0, 1] per motor (thrust proportional to its square), "
     "PX4 quad-X order: " + ", ".join(f"{i} {name}" for i, name in enumerate(MOTOR_NAMES))
@@ -319,9 +352,11 @@ def _resolve_weight_names(spec: dict, module: nn.Module, initializers: set[str])
 def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: int = DEFAULT_OPSET) -> dict:
     """Write the ONNX file for a policy checkpoint; returns the metadata written into it.
 
-    Raises CheckpointError for a checkpoint that cannot be used."""
+    Raises CheckpointError for a checkpoint that cannot be used, OpsetError for an operator set
+    outside `supported_opsets()`, and RuntimeError if the exporter wrote another opset than asked."""
     import onnx
 
+    check_opset(opset)
     checkpoint, out = Path(checkpoint), Path(out)
     ckpt = load_checkpoint(checkpoint)
     policy = TrainedPolicy(ckpt, str(checkpoint))
@@ -352,6 +387,9 @@ def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: in
             verbose=False,
         )
     model = program.model_proto
+    written = {o.domain: o.version for o in model.opset_import}.get("", None)
+    if written != opset:  # the exporter's version conversion can fail without an error
+        raise RuntimeError(f"the ONNX exporter wrote operator set {written} when asked for {opset}; nothing written")
     spec = _resolve_weight_names(module.spec(), module, {t.name for t in model.graph.initializer})
     golden_obs, golden_act = _golden(policy, module)
     cfg = policy.env_config

@@ -11,7 +11,12 @@ Writes into the run directory (default runs/<task>-seed<S>):
                       every N updates and at the end (python -m quadpilot.train.montage draws them)
 
 Resume an interrupted or finished run with the same command plus --resume; a larger --total-steps
-extends a finished run.
+extends a finished run. A run holds its directory's lock (.lock) while it writes there: a second
+run in the same directory, fresh or --resume, is refused.
+
+Exit codes: 0 done; 1 a file that cannot be used (a malformed or foreign checkpoint, a run
+directory another run holds, a write that failed); 2 a bad flag or a request the run directory
+does not fit (one line on stderr each); 130 stopped by Ctrl-C or SIGTERM (resumable).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import dataclasses
 import inspect
 import itertools
 import math
+import re
 import shlex
 import signal
 import sys
@@ -50,8 +56,17 @@ class UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # a value that starts with "-" and a digit is a value (--motor-tau -0.1, --wind -0.9,0,0),
+        # not an unknown option; argparse's own pattern admits only plain numbers like -1 or -.5
+        self._negative_number_matcher = NEGATIVE_VALUE
+
     def error(self, message: str):  # one line on stderr instead of usage + message
         raise UsageError(message)
+
+
+NEGATIVE_VALUE = re.compile(r"^-\.?\d")
 
 
 def field_docs(cls) -> dict[str, str]:
@@ -74,7 +89,10 @@ def field_docs(cls) -> dict[str, str]:
     return docs
 
 
-def _int_at_least(lo: int):
+def _int_at_least(lo: int, hi: int = 2**62):
+    """An argparse type: an integer in lo..hi (the upper bound keeps a typo like 10**12 drones from
+    reaching an allocation)."""
+
     def parse(s: str) -> int:
         try:
             v = int(s.replace("_", ""))
@@ -82,6 +100,8 @@ def _int_at_least(lo: int):
             raise argparse.ArgumentTypeError(f"expected an integer, got {s!r}") from None
         if v < lo:
             raise argparse.ArgumentTypeError(f"must be ≥ {lo}, got {v}")
+        if v > hi:
+            raise argparse.ArgumentTypeError(f"must be ≤ {hi:,}, got {v:,}")
         return v
 
     parse.__name__ = f"integer ≥ {lo}"
@@ -99,6 +119,18 @@ PPO_OPTIONS = {
     "obs_history": ("K", 1),
     "bptt_steps": ("L", 0),
 }
+
+
+def _upper_bounds() -> dict[str, int]:
+    """The largest value of each PPO_OPTIONS flag: the sizes a checkpoint may describe
+    (checkpoint.py), so that a run's own file is never refused, and 64 bits for the seed
+    (torch.manual_seed)."""
+    from .checkpoint import MAX_BATCH, MAX_ENVS, MAX_OBS_HISTORY, MAX_THREADS
+
+    sizes = {"num_envs": MAX_ENVS, "rollout_steps": MAX_BATCH, "minibatch_size": MAX_BATCH, "bptt_steps": MAX_BATCH}
+    return {**sizes, "threads": MAX_THREADS, "obs_history": MAX_OBS_HISTORY, "seed": 2**63 - 1, "total_steps": 2**62}
+
+
 # Options a resumed run may change; everything else must match the checkpoint.
 RESUME_MAY_CHANGE = ("total_steps", "threads")
 # --algo: our PPO, a comparison baseline from another library trained on the same environment
@@ -125,11 +157,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--task", required=True, choices=TASKS, help="What to learn: hover, waypoint (with curriculum), circle."
     )
+    upper = _upper_bounds()
     for name, (metavar, lo) in PPO_OPTIONS.items():
         doc = docs.get(name, "").replace("%", "%%")
         p.add_argument(
             "--" + name.replace("_", "-"),
-            type=_int_at_least(lo),
+            type=_int_at_least(lo, upper[name]),
             metavar=metavar,
             help=f"{doc} Default: the preset's, else {getattr(defaults, name)}.",
         )
@@ -161,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--eval-episodes",
-        type=_int_at_least(0),
+        type=_int_at_least(0, upper["num_envs"]),  # evaluated as one batch of drones
         default=100,
         metavar="N",
         help="Deterministic evaluation episodes of the final policy written to eval.json (0: skip). Default: 100.",
@@ -396,16 +429,84 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
+def check_out_dir(out: Path, flag: str = "--out") -> None:
+    """UsageError unless `out` is a directory this process could create or write in (checked before
+    any work: a path through a file, under /proc, or in a read-only place is refused up front)."""
+    from quadpilot.sitl import check_output_path  # torch-free; the one place outputs are probed
+
+    if not str(out):
+        raise UsageError(f"{flag}: empty path")
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{flag} {out}: exists and is not a directory")
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    try:
+        check_output_path(existing, flag, directory=True)
+    except ValueError as e:
+        raise UsageError(f"{flag} {out}: cannot be created: {str(e).removeprefix(f'{flag} ')}") from None
+
+
+def _check_fresh_dir(out: Path) -> None:
+    """A fresh run needs --out to be new or empty, and not in use by another run."""
+    from .runlog import check_run_dir_free, holds_run_files
+
+    if out.is_dir():
+        check_run_dir_free(out)  # RunDirBusy: exit 1, before anything else is looked at
+        if holds_run_files(out):
+            raise UsageError(
+                f"{out} exists and is not empty; add --resume to continue that run or choose another --out"
+            )
+    elif out.exists() or out.is_symlink():
+        raise UsageError(f"{out} exists and is not a directory; choose another --out")
+    check_out_dir(out)
+
+
+def _claim_fresh_dir(out: Path) -> None:
+    """Create --out and take its lock; then check again that it is empty (another fresh run may
+    have started in it between `_check_fresh_dir` and here)."""
+    from .runlog import holds_run_files
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"--out {out}: cannot create the run directory ({e.strerror or e})") from None
+    _claim(out)
+    if holds_run_files(out):
+        raise UsageError(f"{out} exists and is not empty; add --resume to continue that run or choose another --out")
+
+
+def _claim(out: Path) -> None:
+    """Take the run directory's lock for the rest of this process (runlog.lock_run_dir)."""
+    from .runlog import lock_run_dir
+
+    try:
+        lock_run_dir(out)
+    except PermissionError as e:
+        raise UsageError(f"--out {out}: cannot write there ({e.strerror or e})") from None
+
+
+def _check_sizes(cfg) -> None:
+    """The same bounds on sizes as a checkpoint's (checkpoint._check_sizes), for the flags and
+    presets together: e.g. --num-envs times --rollout-steps."""
+    from .checkpoint import _check_sizes as check
+
+    try:
+        check(cfg, "the configuration")
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
 def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
     from .curriculum import CurriculumConfig, WaypointCurriculum
     from .envs import make_config
     from .ppo import PPO, PRESETS, PPOConfig
     from .runlog import MetricsLog, write_json
 
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise UsageError(f"{out} exists and is not empty; add --resume to continue that run or choose another --out")
+    _check_fresh_dir(out)
     preset = args.preset or "fast"
     cfg = PPOConfig(**{**PRESETS[preset], **explicit})
+    _check_sizes(cfg)
     env_kw = {"vehicle": args.vehicle} if args.vehicle else {}
     if getattr(args, "randomize", None):
         env_kw["randomization"] = args.randomize  # a preset name; make_config scales it to the vehicle
@@ -415,7 +516,7 @@ def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
         env_kw["target_radius"] = cur_cfg.radii[0]
     env_cfg = make_config(args.task, **env_kw)
     ppo = PPO(cfg, env_cfg)  # before any file is written: a failure here leaves no half-made run
-    out.mkdir(parents=True, exist_ok=True)
+    _claim_fresh_dir(out)
     write_json(
         out / "config.json",
         {
@@ -490,18 +591,26 @@ def _record_resume(
     write_json(config_path, config)
 
 
-def _resume(args, explicit: dict, out: Path, argv: list[str]):
-    from .checkpoint import CheckpointError, has_checkpoint, load_for_resume, ppo_from_checkpoint
-    from .ppo import PPOConfig
+def _check_resume_dir(out: Path) -> None:
+    """--resume needs a run directory with a checkpoint that no other run holds; takes its lock."""
+    from .checkpoint import has_checkpoint
+    from .runlog import holds_run_files
 
-    if not has_checkpoint(out):
-        if out.is_dir() and any(out.iterdir()):  # e.g. killed before its first update ended
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--resume: {out} is not a directory; --out names the run directory")
+    if not out.is_dir() or not has_checkpoint(out):
+        if out.is_dir() and holds_run_files(out):  # e.g. killed before its first update ended
             raise UsageError(f"--resume: {out} holds no checkpoint.pt; remove it or pick another --out to start afresh")
         raise UsageError(f"--resume: no checkpoint.pt in {out}; start the run without --resume")
-    try:
-        ckpt, used, warning = load_for_resume(out)
-    except CheckpointError as e:
-        raise UsageError(str(e)) from None
+    _claim(out)  # before reading: the checkpoint read is the one this run continues from
+
+
+def _resume(args, explicit: dict, out: Path, argv: list[str]):
+    from .checkpoint import load_for_resume, ppo_from_checkpoint
+    from .ppo import PPOConfig
+
+    _check_resume_dir(out)
+    ckpt, used, warning = load_for_resume(out)  # CheckpointError: a bad file, exit 1 (main)
     if ckpt.get("algo", "ppo") != "ppo":
         raise UsageError(f"{out} holds a {ckpt['algo']} run; resume it with --algo {ckpt['algo']}")
     if warning:
@@ -533,10 +642,7 @@ def _resume(args, explicit: dict, out: Path, argv: list[str]):
             f"follows the new {cfg.total_steps:,} instead of {stored.total_steps:,}",
             file=sys.stderr,
         )
-    try:
-        ppo = ppo_from_checkpoint(ckpt, cfg, source=str(used))
-    except CheckpointError as e:
-        raise UsageError(str(e)) from None
+    ppo = ppo_from_checkpoint(ckpt, cfg, source=str(used))
     cur = _restore_curriculum(ppo, extra)
     _clean_stale_temps(out)
     _record_resume(out, argv, used, ppo.updates, "ppo", cfg.to_json())
@@ -713,6 +819,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser().parse_args(argv)
+        if args.out is not None and not args.out.strip():
+            raise UsageError("--out: empty path; expected the run directory")
+        if args.motor_tau is not None and not (math.isfinite(args.motor_tau) and args.motor_tau >= 0):
+            raise UsageError(f"--motor-tau must be a finite number of seconds ≥ 0, got {args.motor_tau}")
         if args.algo == "sb3" and getattr(args, "randomize", None):
             raise UsageError("--randomize trains our PPO only; the SB3 comparison runs on the nominal plant")
         ours = ("--arch", args.arch, "--obs-history", args.obs_history, "--bptt-steps", args.bptt_steps)
@@ -737,13 +847,23 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C before training started (during the training loop, see _Stop)
         print("\nquad-train: interrupted", file=sys.stderr)
         return 130
+    except OSError as e:  # a write that failed (disk full, the run directory removed under us)
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"quad-train: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 1
     except Exception as e:
+        from .checkpoint import CheckpointError
         from .ppo import NonFiniteError
+        from .runlog import RunDirBusy
 
-        if isinstance(e, NonFiniteError):
+        if isinstance(e, (CheckpointError, NonFiniteError, RunDirBusy)):
             print(f"quad-train: error: {e}", file=sys.stderr)
             return 1
         raise
+    finally:
+        from .runlog import release_run_dirs
+
+        release_run_dirs()
 
 
 if __name__ == "__main__":

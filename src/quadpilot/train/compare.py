@@ -606,20 +606,61 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _check_args(args) -> None:
+    """Every flag value, before anything is trained or written (one line, exit 2)."""
+    from .checkpoint import MAX_THREADS
+    from .cli import check_out_dir
+
+    limits = {"threads": MAX_THREADS, "workers": 256, "eval_every": 2**62, "total_steps": 2**62}  # quad-train's
+    for name, hi in limits.items():
+        v = getattr(args, name, None)
+        if v is not None and v < 1:
+            raise UsageError(f"--{name.replace('_', '-')} must be ≥ 1, got {v}")
+        if v is not None and v > hi:
+            raise UsageError(f"--{name.replace('_', '-')} must be ≤ {hi:,}, got {v:,}")
+    if args.command == "run":
+        if bad := [s for s in args.seeds if not 0 <= s < 2**63]:
+            raise UsageError(f"--seeds: {bad} are not seeds; expected integers ≥ 0")
+        check_out_dir(Path(args.out))
+    else:
+        for d in args.sweeps:
+            if not Path(d).is_dir():
+                raise UsageError(f"{d}: not a directory; expected a sweep directory written by quad-compare run")
+        check_out_dir(Path(args.figures), "--figures")
+        from quadpilot.sitl import check_output_path
+
+        try:
+            check_output_path(Path(args.doc), "--doc")
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser().parse_args(argv)
-        for name in ("threads", "workers", "eval_every", "total_steps"):
-            v = getattr(args, name, None)
-            if v is not None and v < 1:
-                raise UsageError(f"--{name.replace('_', '-')} must be ≥ 1, got {v}")
-        return cmd_run(args, argv) if args.command == "run" else cmd_report(args, argv)
+        _check_args(args)
+        return cmd_run(args, argv) if args.command == "run" else _report(args, argv)
     except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
     except UsageError as e:
         print(f"quad-compare: error: {e}", file=sys.stderr)
         return 2
+    except _BadSweep as e:
+        print(f"quad-compare: error: {e}", file=sys.stderr)
+        return 1
+
+
+class _BadSweep(Exception):
+    """A sweep directory whose files cannot be read: exit code 1, one line."""
+
+
+def _report(args, argv: list[str]) -> int:
+    try:
+        return cmd_report(args, argv)
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as e:  # JSON/CSV that is not a sweep's
+        what = " ".join(str(e).split())[:200]
+        raise _BadSweep(f"{', '.join(args.sweeps)}: a sweep file cannot be read ({type(e).__name__}: {what})") from None
 
 
 if __name__ == "__main__":

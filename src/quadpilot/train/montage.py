@@ -157,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     pick = p.add_mutually_exclusive_group()
     pick.add_argument(
         "--snapshots",
-        type=_int_at_least(1),
+        type=_int_at_least(1, 64),
         default=3,
         metavar="K",
         help="Snapshots to show, evenly spaced from the first to the last. Default: 3.",
@@ -170,12 +170,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--seed",
-        type=_int_at_least(0),
+        type=_int_at_least(0, 2**63 - 1),
         default=0,
         help="Seed of the start state every snapshot flies from. Default: 0.",
     )
     p.add_argument("--seconds", type=float, metavar="S", help="Seconds to fly. Default: the training episode (5 s).")
-    p.add_argument("--fps", type=_int_at_least(1), default=20, help="Frames per second. Default: 20.")
+    p.add_argument("--fps", type=_int_at_least(1, 120), default=20, help="Frames per second (≤ 120). Default: 20.")
     p.add_argument(
         "--size",
         default="720x320",
@@ -185,11 +185,17 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+MAX_PIXELS = 4096  # per side of the montage; a frame of 4096² is 50 MB of RGB
+MAX_SECONDS = 600.0
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise UsageError(f"--size must be WIDTHxHEIGHT in pixels, e.g. 720x320, got {text!r}") from None
+    if not (16 <= w <= MAX_PIXELS and 16 <= h <= MAX_PIXELS):
+        raise UsageError(f"--size {text}: each side must be 16 to {MAX_PIXELS} pixels")
     return w, h
 
 
@@ -203,18 +209,26 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as e:
         print(f"quadpilot.train.montage: error: {e}", file=sys.stderr)
         return 2
+    except BadFile as e:
+        print(f"quadpilot.train.montage: error: {e}", file=sys.stderr)
+        return 1
+
+
+class BadFile(Exception):
+    """A snapshot that cannot be used: exit code 1, one line."""
 
 
 def _montage(args) -> int:
     import torch
 
+    from quadpilot.sitl import check_output_path
     from quadpilot.viz import VizUnavailable, check_video_output, render_montage
 
     from .checkpoint import CheckpointError, list_snapshots, load_policy
 
     size = _size(args.size)
-    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
-        raise UsageError(f"--seconds must be a positive number, got {args.seconds}")
+    if args.seconds is not None and not (math.isfinite(args.seconds) and 0 < args.seconds <= MAX_SECONDS):
+        raise UsageError(f"--seconds must be a positive number of at most {MAX_SECONDS:g}, got {args.seconds}")
     out = args.out or args.run / "montage.gif"
     try:
         check_video_output(out)
@@ -222,6 +236,10 @@ def _montage(args) -> int:
         raise UsageError(str(e)) from None
     if not args.run.is_dir():
         raise UsageError(f"{args.run} is not a directory; expected a quad-train run directory")
+    try:
+        check_output_path(out, "--out")
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     found = list_snapshots(args.run)
     if not found:
         raise UsageError(
@@ -231,8 +249,8 @@ def _montage(args) -> int:
     torch.set_num_threads(1)  # one drone: threads only cost
     try:
         policies = [(steps, load_policy(path)) for steps, path in chosen]
-    except CheckpointError as e:
-        raise UsageError(str(e)) from None
+    except CheckpointError as e:  # a snapshot that cannot be used: a bad file, exit 1
+        raise BadFile(str(e)) from None
     cfg = flight_config(policies[-1][1], args.seconds)  # one environment for all: the final policy's
     traces, labels = [], []
     print(f"montage of {args.run}: {len(chosen)} of {len(found)} snapshots, start seed {args.seed}")

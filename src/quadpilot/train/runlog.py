@@ -1,9 +1,15 @@
-"""The files of a training run other than checkpoints: metrics.csv, JSON files, curves.png.
+"""The files of a training run other than checkpoints: metrics.csv, JSON files, curves.png, and
+the run directory's lock.
 
 metrics.csv has a fixed header (`COLUMNS`) and one row per PPO update, appended, flushed and
 fsync'd as soon as the update ends, so a kill loses at most the row being written. A resumed run
 first cuts the file back to the checkpoint's update count (`truncate_metrics`), so every update
 number appears once.
+
+A run holds its directory's lock file (`LOCK`, flock(2), `lock_run_dir`) while it writes there, so
+that a second run in the same directory is refused instead of interleaving its files with the
+first's. The kernel drops the lock when the process ends however it ends (kill -9 included), so a
+`--resume` after a crash never finds a stale lock.
 """
 
 from __future__ import annotations
@@ -47,6 +53,8 @@ COLUMNS = (
     "eval_error_m",
 )
 HEADER = ",".join(COLUMNS)
+LOCK = ".lock"
+"""The run directory's lock file: empty but for the pid of the run holding it."""
 
 
 def _cell(v) -> str:
@@ -203,3 +211,82 @@ def plot_curves(
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     return atomic_write(out_path, lambda f: f.write(buf.getvalue()))
+
+
+# --- the run directory's lock ---------------------------------------------------------------
+
+
+class RunDirBusy(Exception):
+    """Another process holds the run directory's lock: one line, exit code 1."""
+
+
+_held: dict[Path, int] = {}  # run directory → the open lock file descriptor of this process
+
+
+def _busy(directory: Path, fd: int) -> RunDirBusy:
+    try:
+        pid = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+    except OSError:
+        pid = ""
+    who = f"another run (pid {pid})" if pid.isdigit() else "another run"
+    return RunDirBusy(f"{directory} is in use by {who}; wait for it to end, or stop it, then try again")
+
+
+def lock_run_dir(directory: str | os.PathLike) -> None:
+    """Take `directory/LOCK` (created if missing) with flock(LOCK_EX | LOCK_NB) and hold it until
+    `release_run_dirs()` or the end of the process. Raises RunDirBusy at once if another process
+    holds it (touching nothing), OSError if the directory cannot be written."""
+    try:
+        import fcntl
+    except ImportError:  # no flock (Windows): runs are not locked there
+        return
+    directory = Path(directory)
+    key = directory.resolve()
+    if key in _held:
+        return
+    fd = os.open(directory / LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        err = _busy(directory, fd)
+        os.close(fd)
+        raise err from None
+    except BaseException:
+        os.close(fd)
+        raise
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+    _held[key] = fd
+
+
+def check_run_dir_free(directory: str | os.PathLike) -> None:
+    """Raise RunDirBusy if another process holds `directory`'s lock; creates and changes nothing
+    (for refusing a request before anything is checked or built)."""
+    try:
+        import fcntl
+    except ImportError:
+        return
+    directory = Path(directory)
+    if directory.resolve() in _held:
+        return
+    try:
+        fd = os.open(directory / LOCK, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:  # no lock file (or no directory): nobody holds it
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # flock(2) takes a read-only descriptor too
+    except BlockingIOError:
+        raise _busy(directory, fd) from None
+    finally:
+        os.close(fd)  # closing drops the probe's own lock at once
+
+
+def release_run_dirs() -> None:
+    """Drop every run-directory lock this process holds (the end of a run)."""
+    while _held:
+        os.close(_held.popitem()[1])
+
+
+def holds_run_files(directory: str | os.PathLike) -> bool:
+    """True if `directory` holds anything but its lock file."""
+    return any(p.name != LOCK for p in Path(directory).iterdir())

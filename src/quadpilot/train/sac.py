@@ -71,7 +71,9 @@ from .checkpoint import (
     _load_env_state,
     _load_episode_state,
     _load_rng_state,
+    _one_line,
     atomic_write,
+    check_fits,
     load_checkpoint,
     plain,
 )
@@ -627,26 +629,33 @@ def checkpoint_dict(sac: SAC, extra: dict | None = None) -> dict:
 
 def load_sac_state(sac: SAC, ckpt: dict, source: str = "checkpoint") -> None:
     """Put a loaded checkpoint's state into `sac` (built with the same configuration), all but the
-    replay rows (`load_replay`). Raises CheckpointError if shapes do not fit."""
+    replay rows (`load_replay`). Raises CheckpointError if anything does not fit."""
+    opt = ckpt["optimizer"]
+    mine = {"actor": sac.actor_opt, "critic": sac.critic_opt, "alpha": sac.alpha_opt}
+    if not isinstance(opt, dict) or set(opt) != set(mine):
+        raise CheckpointError(f"{source}: optimizer: expected the actor, critic and alpha optimizers' states")
+    check_fits(sac, checkpoint_dict(sac), ckpt, source, {f"optimizer.{k}": (opt[k], o) for k, o in mine.items()})
     _check_env_shapes(sac.env.batch, ckpt["env"], source)
     try:
         sac.actor.load_state_dict(ckpt["model"])
         sac.critic.load_state_dict(ckpt["critic"])
         sac.critic_target.load_state_dict(ckpt["critic_target"])
-        opt = ckpt["optimizer"]
         sac.actor_opt.load_state_dict(opt["actor"])
         sac.critic_opt.load_state_dict(opt["critic"])
         sac.alpha_opt.load_state_dict(opt["alpha"])
     except (RuntimeError, ValueError, KeyError) as e:
-        raise CheckpointError(f"{source}: weights do not fit these networks ({e})") from e
-    with torch.no_grad():
-        sac.log_alpha.copy_(ckpt["log_alpha"])
-    sac.global_step = int(ckpt["global_step"])
-    sac.updates = int(ckpt["updates"])
-    sac.grad_steps = int(ckpt["grad_steps"])
-    _load_episode_state(sac, ckpt["trainer"])
-    _load_env_state(sac, ckpt["env"])
-    _load_rng_state(sac, ckpt["rng"], source)
+        raise CheckpointError(f"{source}: weights do not fit these networks ({_one_line(e)})") from None
+    try:  # checked above and in load_checkpoint; what is left is what the loaders refuse
+        with torch.no_grad():
+            sac.log_alpha.copy_(ckpt["log_alpha"])
+        sac.global_step = int(ckpt["global_step"])
+        sac.updates = int(ckpt["updates"])
+        sac.grad_steps = int(ckpt["grad_steps"])
+        _load_episode_state(sac, ckpt["trainer"])
+        _load_env_state(sac, ckpt["env"])
+        _load_rng_state(sac, ckpt["rng"], source)
+    except (KeyError, TypeError, ValueError, RuntimeError, IndexError, AttributeError) as e:
+        raise CheckpointError(f"{source}: training state does not fit this trainer ({_one_line(e)})") from None
 
 
 _CHUNK = re.compile(r"^(\d{12})-(\d{12})\.pt$")
@@ -742,8 +751,12 @@ def sac_from_checkpoint(
     directory: str | os.PathLike, ckpt: dict, cfg: SACConfig | None = None, source: str = ""
 ) -> SAC:
     """A SAC trainer rebuilt from a loaded checkpoint and the replay chunks beside it."""
-    cfg = cfg or SACConfig.from_json(ckpt["sac_config"])
-    sac = SAC(cfg, EnvConfig.from_json(ckpt["env_config"]))
+    try:
+        cfg = cfg or SACConfig.from_json(ckpt["sac_config"])
+        sac = SAC(cfg, EnvConfig.from_json(ckpt["env_config"]))
+    except (KeyError, TypeError, ValueError) as e:
+        where = source or directory
+        raise CheckpointError(f"{where}: its configuration cannot build a trainer ({_one_line(e)})") from None
     load_sac_state(sac, ckpt, source or str(directory))
     load_replay(directory, sac.buffer, int(ckpt["replay"]["stored"]))
     return sac
@@ -910,24 +923,24 @@ def train_from_cli(args, argv: list[str]) -> int:
 
 
 def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
-    from .cli import UsageError, _command, _now
+    from .cli import UsageError, _check_fresh_dir, _check_sizes, _claim_fresh_dir, _command, _now
     from .curriculum import CurriculumConfig, WaypointCurriculum
     from .envs import make_config
     from .runlog import write_json
 
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise UsageError(f"{out} exists and is not empty; add --resume to continue that run or choose another --out")
+    _check_fresh_dir(out)
     try:
         cfg = SACConfig(**explicit)
     except ValueError as e:
         raise UsageError(f"SAC configuration: {e}") from None
+    _check_sizes(cfg)
     env_kw = {"vehicle": args.vehicle} if args.vehicle else {}
     cur_cfg = CurriculumConfig() if args.task == "waypoint" else None
     if cur_cfg is not None:
         env_kw["target_radius"] = cur_cfg.radii[0]
     env_cfg = make_config(args.task, **env_kw)
     sac = SAC(cfg, env_cfg)  # before any file is written
-    out.mkdir(parents=True, exist_ok=True)
+    _claim_fresh_dir(out)
     write_json(
         out / "config.json",
         {
@@ -953,15 +966,11 @@ def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
 
 
 def _resume(args, explicit: dict, out: Path, argv: list[str], may_change: tuple[str, ...]):
-    from .checkpoint import has_checkpoint, load_for_resume
-    from .cli import UsageError, _clean_stale_temps, _record_resume, _restore_curriculum
+    from .checkpoint import load_for_resume
+    from .cli import UsageError, _check_resume_dir, _clean_stale_temps, _record_resume, _restore_curriculum
 
-    if not has_checkpoint(out):
-        raise UsageError(f"--resume: no checkpoint.pt in {out}; start the run without --resume")
-    try:
-        ckpt, used, warning = load_for_resume(out)
-    except CheckpointError as e:
-        raise UsageError(str(e)) from None
+    _check_resume_dir(out)
+    ckpt, used, warning = load_for_resume(out)  # CheckpointError: a bad file, exit 1 (cli.main)
     if ckpt.get("algo", "ppo") != "sac":
         raise UsageError(f"{out} holds a {ckpt.get('algo', 'ppo')} run; resume it without --algo sac")
     if warning:
@@ -986,10 +995,7 @@ def _resume(args, explicit: dict, out: Path, argv: list[str], may_change: tuple[
     _clean_stale_temps(out)
     for f in (out / REPLAY_DIR).glob(".*.tmp"):
         f.unlink(missing_ok=True)
-    try:
-        sac = sac_from_checkpoint(out, ckpt, cfg, source=str(used))
-    except CheckpointError as e:
-        raise UsageError(str(e)) from None
+    sac = sac_from_checkpoint(out, ckpt, cfg, source=str(used))
     extra = ckpt["extra"]
     cur = _restore_curriculum(sac, extra)
     _record_resume(out, argv, used, sac.updates, "sac", cfg.to_json(), COLUMNS)
