@@ -158,6 +158,16 @@ def _address(flag: str, *, port_zero: bool = False, none: bool = False):
     return parse
 
 
+def _fraction(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1], got {text!r}") from None
+    if not 0.0 <= v <= 1.0:  # False for NaN too
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1] (0.95 = 95 %), got {text!r}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("policy", nargs="?", type=Path, help=f"ONNX file from quad-export. Default: {SHIPPED_HOVER}")
@@ -188,6 +198,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=_address("--listen", port_zero=True),
         default=None,
         help="Where the simulator listens (tcp:HOST:PORT). Default: a free loopback port.",
+    )
+    p.add_argument(
+        "--min-success",
+        type=_fraction,
+        default=0.0,
+        metavar="F",
+        help="Exit 1 (after the summary) when the flown success rate is below F, e.g. 0.95. Default: 0",
     )
     p.add_argument("--json", type=Path, metavar="OUT", help="Write the summary as JSON.")
     p.add_argument(
@@ -394,6 +411,11 @@ def _bad_flag(message: str) -> int:
     return 2
 
 
+def _bad_run(message: str) -> int:
+    print(f"quad-sitl: {message}", file=sys.stderr)
+    return 1
+
+
 def _bad_file(message: str) -> int:
     print(f"quad-sitl: error: {message}", file=sys.stderr)
     return 1
@@ -570,7 +592,14 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
         return 1
     if tlog is not None:
         print(f"  MAVLink log             {args.tlog} ({tlog.messages:,} messages; read it with mavlogdump.py)")
-    return _draw(args, logs, policy.info.control_period_s)
+    code = _draw(args, logs, policy.info.control_period_s)
+    rate = summary["success_rate"]
+    if code == 0 and args.min_success > 0 and not rate >= args.min_success:  # NaN (nothing flown) fails too
+        flown = f"{rate:.0%}" if math.isfinite(rate) else "nothing"
+        return _bad_run(
+            f"success rate {flown} of {summary['episodes']} episodes is below --min-success {args.min_success:g}"
+        )
+    return code
 
 
 def _traces(logs):
