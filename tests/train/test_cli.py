@@ -203,8 +203,12 @@ def test_help_lists_every_option_with_text(capsys):
 
 
 def test_metrics_header_is_fixed():
-    assert HEADER.split(",") == list(COLUMNS)
-    assert COLUMNS[:3] == ("global_step", "update", "time_s") and COLUMNS[-4:-2] == (
-        "curriculum_stage",
-        "target_radius",
+    """metrics.csv's columns are an interface (the walkthrough, quad-compare and users' notebooks
+    read them by name): written out here, so that renaming, dropping or reordering one fails."""
+    assert HEADER == (
+        "global_step,update,time_s,policy_loss,value_loss,entropy,approx_kl,clip_fraction,"
+        "explained_variance,grad_norm,lr,steps_per_s,rollout_s,env_s,inference_s,update_s,ep_return,"
+        "ep_length,success_rate,episodes,nonfinite_skipped,curriculum_stage,target_radius,"
+        "eval_success_rate,eval_error_m"
     )
+    assert HEADER.split(",") == list(COLUMNS)

@@ -97,7 +97,8 @@ def test_replayed_sequences_reproduce_the_rollout(bptt):
     torch.testing.assert_close(v, mb["val"], rtol=0, atol=1e-5)
 
 
-def test_lstm_iterate_reports_every_metric_finite_and_learns_something():
+def test_lstm_iterate_reports_every_metric_finite_and_updates_the_weights():
+    """One update runs end to end (that it learns is tests/learning's cue task)."""
     ppo = lstm_ppo()
     before = {k: v.clone() for k, v in ppo.model.state_dict().items()}
     m = ppo.iterate()
