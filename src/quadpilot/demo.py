@@ -6,26 +6,15 @@ Exit codes: 0 done; 2 a bad flag (one line on stderr).
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import time
 
 import numpy as np
 
+from quadpilot.console import Parser, UsageError
+
 MAX_ENVS = 1 << 16  # quad-train's bound (train.cli.MAX_ENVS): 65 536 drones are ~5 MB of state
 MAX_STEPS = 1_000_000
-
-
-class _Parser(argparse.ArgumentParser):
-    """One line on stderr for a bad flag, like the other quadpilot commands."""
-
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self._negative_number_matcher = re.compile(r"^-\.?\d")  # "--seed -1" is a (bad) value
-
-    def error(self, message: str):
-        print(f"quad-demo: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
 
 
 def _int_in(lo: int, hi: int):
@@ -43,7 +32,7 @@ def _int_in(lo: int, hi: int):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = _Parser(prog="quad-demo", description=__doc__.split("\n\n")[0])
+    ap = Parser(prog="quad-demo", description=__doc__.split("\n\n")[0])
     ap.add_argument(
         "--num-envs", type=_int_in(1, MAX_ENVS), default=1024, help="drones in the batched vector environment"
     )
@@ -51,7 +40,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="random seed")
     try:
         args = ap.parse_args(argv)
-    except SystemExit as e:  # --help, or a bad flag (already reported)
+    except UsageError as e:
+        print(f"quad-demo: error: {e}", file=sys.stderr)
+        return 2
+    except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
 
     import gymnasium as gym

@@ -9,6 +9,9 @@ Each side also runs alone: `quad-sitl --sim-only [--listen tcp:127.0.0.1:4560]` 
 simulator until stopped; `quad-sitl POLICY.onnx --node-only --connect tcp:127.0.0.1:4560` flies a
 simulator that listens there.
 
+The simulator flies the policy's own vehicle (the parameter set in its ONNX metadata, trained with
+quad-train --vehicle); --vehicle NAME|FILE.toml flies another, with a warning when it differs.
+
 Exit codes: 0 flown; 1 a file that cannot be used (a policy or signing key that fails its checks),
 the simulator did not start, or the link failed; 2 a bad flag (including a path that does not exist,
 is of the wrong kind, or cannot be written); 130 interrupted; 143 terminated (SIGTERM). Every flag
@@ -31,64 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
+from quadpilot.console import Parser, UsageError, check_output_path
+
 SHIPPED_HOVER = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"
 MAX_EPISODES = 100_000
 MAX_DURATION_S = 3600.0  # an hour of 100 Hz flight is 360 000 logged steps per episode
 # A flag value that starts with "-" and a digit is a value (--wind -0.9,0,0), not an unknown
 # option; argparse's own pattern admits only plain numbers like -1 or -.5.
-NEGATIVE_VALUE = re.compile(r"^-\.?\d")
-
-
-class _Parser(argparse.ArgumentParser):
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self._negative_number_matcher = NEGATIVE_VALUE
-
-    def error(self, message: str):
-        print(f"quad-sitl: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-
-def check_output_path(path: Path, flag: str, *, directory: bool = False) -> None:
-    """Raise ValueError (one line naming `flag`) unless `path` can be written: a file whose parent
-    directory exists and takes a new file, not an existing directory (`directory`: a directory that
-    exists, or whose parent does, and takes a new file). Checked before any work, so that a run is
-    not lost to an output it cannot write at the end; a probe file is created and removed, since
-    permission bits do not tell (root ignores them, /proc and /sys refuse anyway)."""
-    if not str(path):
-        raise ValueError(f"{flag}: empty path")
-    if directory:
-        if path.exists() and not path.is_dir():
-            raise ValueError(f"{flag} {path}: exists and is not a directory (--format c writes a directory)")
-        where = path if path.is_dir() else path.parent
-    else:
-        if path.is_dir():
-            raise ValueError(f"{flag} {path}: is a directory; expected a file name")
-        where = path.parent
-    if not where.is_dir():
-        raise ValueError(f"{flag} {path}: directory {where} does not exist")
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".quadpilot-write-check-", dir=where)
-    except OSError as e:
-        raise ValueError(f"{flag} {path}: cannot write in {where} ({e.strerror or e})") from None
-    os.close(fd)
-    os.unlink(probe)
-
-
-def _join_negative_values(argv: list[str]) -> list[str]:
-    """`--flag -0.9,0,0` as `--flag=-0.9,0,0`, for a parser that would take the value for an
-    option (the simulator's, which --sim-only hands the command line to)."""
-    out: list[str] = []
-    i = 0
-    while i < len(argv):
-        tok = argv[i]
-        if tok.startswith("--") and "=" not in tok and i + 1 < len(argv) and NEGATIVE_VALUE.match(argv[i + 1]):
-            out.append(f"{tok}={argv[i + 1]}")
-            i += 2
-        else:
-            out.append(tok)
-            i += 1
-    return out
 
 
 def _free_port() -> int:
@@ -110,7 +62,7 @@ SIM_FLAGS = {
     "--drag": "D",
     "--imu-noise": None,
     "--estimator-noise": None,
-    "--vehicle": "NAME",
+    "--vehicle": "NAME|FILE.toml",
 }
 
 
@@ -169,7 +121,7 @@ def _fraction(text: str) -> float:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
+    p = Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("policy", nargs="?", type=Path, help=f"ONNX file from quad-export. Default: {SHIPPED_HOVER}")
     p.add_argument(
         "--episodes", type=_int_in(1, MAX_EPISODES), default=10, metavar="N", help="Episodes to fly. Default: 10"
@@ -438,15 +390,18 @@ def main(argv: list[str] | None = None) -> int:
     if "--sim-only" in argv:
         from quadpilot.firmware_sim.sim import main_sim_only
 
-        return main_sim_only(_join_negative_values(argv))
+        return main_sim_only(argv)
     try:
         args = p.parse_args(argv)
-    except SystemExit as e:
+    except UsageError as e:
+        return _bad_flag(str(e))
+    except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
     # every flag is checked here, before anything starts: nothing below refuses a flag
     rest = _sim_args(args)
     if rest:  # the simulator's own flags (--mass-scale, --wind, --imu-noise, ...): checked here, passed on
-        from quadpilot.firmware_sim.sim import UsageError, build_sim_parser, config_from_args
+        from quadpilot.core.vehicle_file import VehicleFileError
+        from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
 
         if args.node_only:
             return _bad_flag(f"{' '.join(rest)}: simulator flags, but --node-only runs no simulator")
@@ -454,6 +409,8 @@ def main(argv: list[str] | None = None) -> int:
             config_from_args(build_sim_parser("quad-sitl").parse_args(rest))  # the same checks as the simulator's
         except UsageError as e:
             return _bad_flag(str(e))
+        except VehicleFileError as e:  # --vehicle FILE that cannot be used
+            return _bad_file(str(e))
     if args.node_only and not args.connect:
         return _bad_flag("--node-only needs --connect tcp:HOST:PORT")
     if args.connect and not args.node_only:
@@ -510,7 +467,19 @@ def main(argv: list[str] | None = None) -> int:
             return _bad_file(str(e))
     old = signal.signal(signal.SIGTERM, _on_sigterm) if _in_main_thread() else None
     try:
-        return _fly(args, rest, policy, policy_path, task, key)
+        with tempfile.TemporaryDirectory(prefix="quad-sitl-") as tmp:  # the policy's vehicle file, if it needs one
+            if not args.node_only:
+                from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
+
+                try:
+                    rest = [*rest, *_vehicle_args(args, policy.info.vehicle, Path(tmp))]
+                except ValueError as e:  # the policy's vehicle cannot be written as a vehicle file
+                    return _bad_file(f"{policy_path}: {e}")
+                try:  # the flags together with the policy's vehicle (e.g. a noise model it has not)
+                    config_from_args(build_sim_parser("quad-sitl").parse_args(rest))
+                except UsageError as e:
+                    return _bad_flag(str(e))
+            return _fly(args, rest, policy, policy_path, task, key)
     except _Terminated:
         print("quad-sitl: terminated", file=sys.stderr)
         return 128 + signal.SIGTERM
@@ -520,6 +489,33 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if old is not None:
             signal.signal(signal.SIGTERM, old)
+
+
+def _vehicle_args(args, policy_vehicle, tmp: Path) -> list[str]:
+    """The simulator's --vehicle: the policy's own vehicle unless --vehicle names another (then a
+    one-line warning on stderr when its parameters differ from the policy's). The policy's vehicle
+    is its preset's name when it is that preset exactly, else a vehicle file written into `tmp`."""
+    import dataclasses
+
+    from quadpilot.core.params import PRESETS
+    from quadpilot.core.vehicle_file import resolve_vehicle, vehicle_to_toml
+
+    if args.vehicle is not None:  # already passed on in `rest`, and checked
+        flown = resolve_vehicle(args.vehicle)
+        if dataclasses.replace(flown, name="") != dataclasses.replace(policy_vehicle, name=""):
+            print(
+                f"quad-sitl: warning: --vehicle {args.vehicle} ({flown.name}, {flown.mass:g} kg) differs from the "
+                f"vehicle the policy was trained on ({policy_vehicle.name}, {policy_vehicle.mass:g} kg)",
+                file=sys.stderr,
+            )
+        return []
+    if PRESETS.get(policy_vehicle.name) == policy_vehicle:
+        return [f"--vehicle={policy_vehicle.name}"]
+    # the name only labels the vehicle (and picks its sensor models): one a file can hold
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", policy_vehicle.name)[:64] or "policy_vehicle"
+    path = tmp / "policy_vehicle.toml"
+    path.write_text(vehicle_to_toml(dataclasses.replace(policy_vehicle, name=name)), encoding="utf-8")
+    return [f"--vehicle={path}"]
 
 
 def _in_main_thread() -> bool:

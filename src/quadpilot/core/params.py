@@ -7,6 +7,10 @@ and drag may be 0); anything else is a ValueError naming the field, its value an
 `ParamBatch` holds the same quantities as arrays of shape (N,) so that one dynamics call steps N
 drones that may each differ (domain randomisation needs no other code path).
 
+The presets are also shipped as vehicle files, `quadpilot/vehicles/<name>.toml` (`core.vehicle_file`
+reads them and users' files alike); tests/core/test_vehicle_files.py holds the two equal, field by
+field, so a change here needs the same change there.
+
 Motor numbering is PX4's quad-X order (see `MOTOR_LAYOUT` in `dynamics`): 0 front-right (CCW),
 1 rear-left (CCW), 2 front-left (CW), 3 rear-right (CW).
 """

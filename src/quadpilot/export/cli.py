@@ -19,24 +19,13 @@ truncated, not a quadpilot checkpoint), or the export or its parity check failed
 
 from __future__ import annotations
 
-import argparse
-import re
 import sys
 from pathlib import Path
 
+from quadpilot.console import Parser, UsageError
+
 PARITY_TOLERANCE = 1e-5  # max abs difference in motor command (the export issue's bar)
 MAX_PARITY_SAMPLES = 1_000_000  # ~70 MB of observations; the default 10 000 takes seconds
-
-
-class _Parser(argparse.ArgumentParser):
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        # "-1" after --opset is a (bad) value, not an unknown option; see train.cli._Parser
-        self._negative_number_matcher = re.compile(r"^-\.?\d")
-
-    def error(self, message: str):
-        print(f"quad-export: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
 
 
 class _BadFlag(Exception):
@@ -45,7 +34,7 @@ class _BadFlag(Exception):
 
 def _check_args(args) -> Path:
     """Refuse bad flag values before anything is loaded; returns the output path."""
-    from quadpilot.sitl import check_output_path
+    from quadpilot.console import check_output_path
 
     from .onnx_export import OpsetError, check_opset
 
@@ -75,7 +64,7 @@ def _check_args(args) -> Path:
 def main(argv: list[str] | None = None) -> int:
     from .onnx_export import DEFAULT_OPSET
 
-    p = _Parser(prog="quad-export", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
+    p = Parser(prog="quad-export", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("checkpoint", type=Path, help="policy.pt (or checkpoint.pt) written by quad-train")
     p.add_argument(
         "-o",
@@ -107,7 +96,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         args = p.parse_args(argv)
-    except SystemExit as e:
+    except UsageError as e:
+        print(f"quad-export: error: {e}", file=sys.stderr)
+        return 2
+    except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
     try:
         out = _check_args(args)

@@ -10,7 +10,10 @@ import dataclasses
 import math
 import sys
 
+from quadpilot.console import Parser, UsageError
 from quadpilot.core.mission import TASKS
+from quadpilot.core.params import PRESETS
+from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError, is_vehicle_path, resolve_vehicle
 from quadpilot.link.transport import SigningError, SimulatorError, parse_address, read_key
 
 from .config import DEFAULT_WIND_DRAG, SimConfig
@@ -18,13 +21,11 @@ from .process import Simulator
 from .records import SimStats
 
 
-class UsageError(Exception):
-    """A bad flag: exit code 2 with one line on stderr."""
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        raise UsageError(message)
+def vehicle_label(cfg: SimConfig) -> str:
+    """The vehicle a config flies, for messages: the preset name, or the file's vehicle and path."""
+    if cfg.airframe is not None:
+        return f"{cfg.airframe.name} ({cfg.airframe.mass:g} kg) from {cfg.airframe_source}"
+    return cfg.vehicle
 
 
 def _wind(text: str) -> tuple[float, float, float]:
@@ -83,9 +84,7 @@ def _listen(text: str) -> str:
 
 def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentParser:
     d = SimConfig()
-    p = _Parser(
-        prog=prog, description="Run only the simulator: core dynamics served over MAVLink like a PX4 simulator."
-    )
+    p = Parser(prog=prog, description="Run only the simulator: core dynamics served over MAVLink like a PX4 simulator.")
     p.add_argument("--sim-only", action="store_true", help=argparse.SUPPRESS)
     p.add_argument(
         "--listen", type=_listen, default=d.listen, help=f"tcp:HOST:PORT or udp:HOST:PORT (default {d.listen})"
@@ -95,7 +94,12 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         "--lockstep", dest="lockstep", action="store_true", default=True, help="one step per actuator message (default)"
     )
     mode.add_argument("--realtime", dest="lockstep", action="store_false", help="one step per dt of wall-clock time")
-    p.add_argument("--vehicle", default=d.vehicle, help=f"airframe preset (default {d.vehicle})")
+    p.add_argument(
+        "--vehicle",
+        default=d.vehicle,
+        metavar="NAME|FILE.toml",
+        help=f"airframe: a shipped vehicle or a vehicle file (core.vehicle_file; default {d.vehicle})",
+    )
     p.add_argument("--task", choices=TASKS, default=d.task, help="where episodes start (core.mission; default hover)")
     p.add_argument("--mass-scale", type=_positive, default=d.mass_scale, help="multiplies the mass")
     p.add_argument("--inertia-scale", type=_positive, default=d.inertia_scale, help="multiplies the inertias")
@@ -158,11 +162,23 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
 
 
 def config_from_args(args: argparse.Namespace) -> SimConfig:
+    """The SimConfig the flags describe. UsageError for a bad flag (an unknown vehicle name among
+    them); VehicleFileError (a ValueError) for a --vehicle file that cannot be used."""
+    try:
+        airframe = resolve_vehicle(args.vehicle)
+    except UnknownVehicleError as e:
+        raise UsageError(f"--vehicle: {e}") from None
+    file_kw: dict = {}
+    vehicle = args.vehicle
+    if is_vehicle_path(args.vehicle):
+        vehicle = airframe.name if airframe.name in PRESETS else "seed"  # whose sensor models apply
+        file_kw = {"airframe": airframe, "airframe_source": args.vehicle}
     try:
         return SimConfig(
+            **file_kw,
             listen=args.listen,
             task=args.task,
-            vehicle=args.vehicle,
+            vehicle=vehicle,
             mass_scale=args.mass_scale,
             inertia_scale=args.inertia_scale,
             motor_scale=args.motor_scale,
@@ -213,11 +229,15 @@ def main_sim_only(argv: list[str] | None = None, prog: str = "quad-sitl") -> int
     except UsageError as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
+    except VehicleFileError as e:  # a --vehicle file that cannot be used
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 1
     sim = Simulator(cfg, on_episode=lambda r: print(r.summary(), flush=True))
     try:
         address = sim.bind()
         mode = "lockstep" if cfg.lockstep else "realtime"
-        print(f"{prog}: simulator listening on {address} ({mode}, vehicle {cfg.vehicle}, seed {cfg.seed})", flush=True)
+        what = f"{mode}, vehicle {vehicle_label(cfg)}, seed {cfg.seed}"
+        print(f"{prog}: simulator listening on {address} ({what})", flush=True)
         stats = sim.serve()
     except SimulatorError as e:
         print(f"{prog}: error: {e}", file=sys.stderr)

@@ -14,7 +14,7 @@ import numpy as np
 
 from quadpilot.core import dynamics
 from quadpilot.core.mission import TASKS, Mission, plan_episode
-from quadpilot.core.params import VehicleParams, get_preset
+from quadpilot.core.params import PRESETS, VehicleParams, get_preset
 from quadpilot.core.sensor_noise import SensorNoise, get_sensor_noise
 from quadpilot.core.start import sample_start_states
 from quadpilot.link import wire
@@ -106,6 +106,13 @@ class SimConfig:
     signing_key: bytes | None = field(default=None, repr=False)
     """MAVLink 2 signing key (32 bytes): sign every message and accept only authentic, fresh,
     signed ones (`link.transport.SigningMAVLink`); the replay window carries over between episodes."""
+    airframe: VehicleParams | None = None
+    """The airframe read from a vehicle file (`core.vehicle_file`), flown instead of the preset
+    `vehicle` names, with the same scales, motor time constant and drag rules; `vehicle` then names
+    the preset whose sensor models (`core.sensor_noise`) the noise flags use, and the noise flags
+    are refused when the file's vehicle is not that preset. None: the preset itself."""
+    airframe_source: str = ""
+    """Where `airframe` came from (a path, shown in messages)."""
 
     def __post_init__(self) -> None:
         parse_address(self.listen)
@@ -144,6 +151,14 @@ class SimConfig:
             raise ValueError(f"episodes must be an integer ≥ 1 or None (for ever), got {self.episodes!r}")
         if self.signing_key is not None and (not isinstance(self.signing_key, bytes) or len(self.signing_key) != 32):
             raise ValueError("signing_key must be 32 bytes")
+        if self.airframe is not None:
+            if not isinstance(self.airframe, VehicleParams):
+                raise ValueError(f"airframe must be a VehicleParams, got {type(self.airframe).__name__}")
+            if (self.imu_noise or self.estimator_noise) and self.airframe.name != self.vehicle:
+                raise ValueError(
+                    f"--imu-noise/--estimator-noise: no sensor model for vehicle {self.airframe.name!r} "
+                    f"(sensor models exist for {', '.join(sorted(PRESETS))})"
+                )
         if self.initial_state is not None:
             s = np.asarray(self.initial_state, dtype=np.float64)
             if s.shape != (dynamics.STATE_DIM,) or not np.all(np.isfinite(s)):
@@ -161,14 +176,19 @@ class SimConfig:
         """N·s/m, the drag coefficient the plant uses (see `drag`)."""
         if self.drag is not None:
             return float(self.drag)
-        own = get_preset(self.vehicle).drag
+        own = self.base_vehicle.drag
         return DEFAULT_WIND_DRAG if own == 0 and (any(self.wind) or self.gust > 0) else own
 
     @property
+    def base_vehicle(self) -> VehicleParams:
+        """The airframe before scaling: the file's (`airframe`), else the preset `vehicle`."""
+        return self.airframe if self.airframe is not None else get_preset(self.vehicle)
+
+    @property
     def vehicle_params(self) -> VehicleParams:
-        """The simulated airframe: the preset with the scales and the drag applied."""
+        """The simulated airframe: `base_vehicle` with the scales and the drag applied."""
         s = self.inertia_scale
-        scaled = get_preset(self.vehicle).scaled(mass=self.mass_scale, ixx=s, iyy=s, izz=s, k_f=self.motor_scale)
+        scaled = self.base_vehicle.scaled(mass=self.mass_scale, ixx=s, iyy=s, izz=s, k_f=self.motor_scale)
         if self.motor_tau_s is not None:
             scaled = dataclasses.replace(scaled, motor_tau=self.motor_tau_s)
         return dataclasses.replace(scaled, drag=self.effective_drag)

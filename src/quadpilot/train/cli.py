@@ -27,7 +27,6 @@ import dataclasses
 import inspect
 import itertools
 import math
-import re
 import shlex
 import signal
 import sys
@@ -38,6 +37,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+
+from quadpilot.console import Parser, UsageError
 
 SIGNALS = ("SIGINT", "SIGTERM")
 RUN_FILES = (
@@ -51,22 +52,7 @@ RUN_FILES = (
 )
 
 
-class UsageError(Exception):
-    """A bad flag or a run directory that does not fit the request: exit code 2, one line."""
-
-
-class _Parser(argparse.ArgumentParser):
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        # a value that starts with "-" and a digit is a value (--motor-tau -0.1, --wind -0.9,0,0),
-        # not an unknown option; argparse's own pattern admits only plain numbers like -1 or -.5
-        self._negative_number_matcher = NEGATIVE_VALUE
-
-    def error(self, message: str):  # one line on stderr instead of usage + message
-        raise UsageError(message)
-
-
-NEGATIVE_VALUE = re.compile(r"^-\.?\d")
+_Parser = Parser  # the shared scaffold (quadpilot.console); the name the studies import
 
 
 def field_docs(cls) -> dict[str, str]:
@@ -140,7 +126,7 @@ ALGOS = {"ppo": None, "sb3": "sb3_baseline", "sac": "sac"}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from quadpilot.core.params import PRESETS as VEHICLES
+    from quadpilot.core.vehicle_file import shipped_names
 
     from .envs import TASKS
     from .ppo import PRESETS, PPOConfig
@@ -182,7 +168,13 @@ def build_parser() -> argparse.ArgumentParser:
         "sb3_defaults (Stable-Baselines3 PPO's defaults). "
         "Options given explicitly override it. Default: fast.",
     )
-    p.add_argument("--vehicle", choices=sorted(VEHICLES), help="Airframe preset. Default: seed.")
+    p.add_argument(
+        "--vehicle",
+        metavar="NAME|FILE.toml",
+        help=f"Airframe: a shipped vehicle ({', '.join(shipped_names())}; quadpilot/vehicles/*.toml) or a vehicle "
+        "file of the same schema (quadpilot.core.vehicle_file). It travels with the policy (checkpoint, ONNX "
+        "metadata). Default: seed.",
+    )
     _add_randomize_option(p)
     _add_sensor_options(p)
     p.add_argument("--out", metavar="DIR", help="Run directory. Default: runs/<task>-seed<S>.")
@@ -295,27 +287,79 @@ def _add_sensor_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _resolve_vehicle(args) -> None:
+    """--vehicle NAME|FILE.toml: a shipped name stays a name (`core.params.get_preset`, equal to its
+    file), a file becomes its VehicleParams. UnknownVehicleError (exit 2) or VehicleFileError (exit 1)."""
+    from quadpilot.core.vehicle_file import is_vehicle_path, resolve_vehicle
+
+    if args.vehicle is None:
+        return
+    params = resolve_vehicle(args.vehicle)  # checks a name against the shipped files, reads a file
+    if is_vehicle_path(args.vehicle):
+        args.vehicle = params
+
+
+def _vehicle(args):
+    """The VehicleParams --vehicle names (seed without it)."""
+    from quadpilot.core.params import VehicleParams, get_preset
+
+    v = args.vehicle or "seed"
+    return v if isinstance(v, VehicleParams) else get_preset(v)
+
+
+def _sensor_preset(args) -> str:
+    """The sensor-noise preset --sensor-noise names; without a PRESET, the vehicle's own, which a
+    vehicle file has only if its name is a sensor-noise preset's."""
+    from quadpilot.core.sensor_noise import SENSOR_NOISE_PRESETS
+
+    if args.sensor_noise != "vehicle":
+        return args.sensor_noise
+    name = _vehicle(args).name
+    if name not in SENSOR_NOISE_PRESETS:
+        raise UsageError(
+            f"--sensor-noise: no sensor model for vehicle {name!r}; name one: --sensor-noise "
+            f"{'|'.join(sorted(SENSOR_NOISE_PRESETS))}"
+        )
+    return name
+
+
 def _sensor_env_kw(args) -> dict:
     """make_config keywords for --sensor-noise and --motor-tau."""
     import dataclasses as dc
 
-    from quadpilot.core.params import get_preset
-
     kw: dict = {}
     if args.sensor_noise:
-        kw["sensor_noise"] = (args.vehicle or "seed") if args.sensor_noise == "vehicle" else args.sensor_noise
+        kw["sensor_noise"] = _sensor_preset(args)
     if args.motor_tau is not None:
         if not (math.isfinite(args.motor_tau) and args.motor_tau >= 0):
             raise UsageError(f"--motor-tau must be a finite number of seconds ≥ 0, got {args.motor_tau}")
-        kw["vehicle"] = dc.replace(get_preset(args.vehicle or "seed"), motor_tau=args.motor_tau)
+        kw["vehicle"] = dc.replace(_vehicle(args), motor_tau=args.motor_tau)
     return kw
+
+
+def _vehicle_clash(args, env_config: dict) -> list[str]:
+    """A resumed run keeps its vehicle: --vehicle, if given, must name the stored one (a name: the
+    same name; a file: the same parameters, with --motor-tau's time constant if that is given)."""
+    import dataclasses as dc
+
+    from quadpilot.core.params import VehicleParams
+
+    if not args.vehicle:
+        return []
+    stored = env_config["vehicle"]
+    if isinstance(args.vehicle, str):
+        return [] if args.vehicle == stored["name"] else [f"--vehicle {args.vehicle} (checkpoint: {stored['name']})"]
+    want = args.vehicle if args.motor_tau is None else dc.replace(args.vehicle, motor_tau=args.motor_tau)
+    if want == VehicleParams(**stored):
+        return []
+    return [f"--vehicle {want.name} from a file whose parameters differ (checkpoint: {stored['name']})"]
 
 
 def _sensor_clash(args, env_config: dict) -> list[str]:
     """A resumed run keeps its sensors and motors: the flags, if given, must match the checkpoint."""
     out = []
     if args.sensor_noise:
-        want = (args.vehicle or "seed") if args.sensor_noise == "vehicle" else args.sensor_noise
+        want = _sensor_preset(args)
         stored = (env_config.get("sensor_noise") or {}).get("name")
         if stored != want:
             out.append(f"--sensor-noise {want} (checkpoint: {stored or 'off'})")
@@ -432,7 +476,7 @@ def _now() -> str:
 def check_out_dir(out: Path, flag: str = "--out") -> None:
     """UsageError unless `out` is a directory this process could create or write in (checked before
     any work: a path through a file, under /proc, or in a read-only place is refused up front)."""
-    from quadpilot.sitl import check_output_path  # torch-free; the one place outputs are probed
+    from quadpilot.console import check_output_path  # the one place outputs are probed
 
     if not str(out):
         raise UsageError(f"{flag}: empty path")
@@ -627,8 +671,7 @@ def _resume(args, explicit: dict, out: Path, argv: list[str]):
     ]
     if args.preset and args.preset != extra.get("preset"):
         clashes.append(f"--preset {args.preset} (checkpoint: {extra.get('preset')})")
-    if args.vehicle and args.vehicle != ckpt["env_config"]["vehicle"]["name"]:
-        clashes.append(f"--vehicle {args.vehicle} (checkpoint: {ckpt['env_config']['vehicle']['name']})")
+    clashes += _vehicle_clash(args, ckpt["env_config"])
     clashes += _randomize_clash(args, ckpt["env_config"])
     clashes += _sensor_clash(args, ckpt["env_config"])
     if clashes:
@@ -834,6 +877,7 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError("--set sets SAC hyper-parameters; it needs --algo sac")
         if args.snapshot_every and args.algo != "ppo":
             raise UsageError(f"--snapshot-every is for our PPO; --algo {args.algo} writes no snapshots")
+        _resolve_vehicle(args)
         if ALGOS[args.algo] is not None:
             from importlib import import_module
 
@@ -852,11 +896,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"quad-train: error: {where}{e.strerror or e}", file=sys.stderr)
         return 1
     except Exception as e:
+        from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError
+
         from .checkpoint import CheckpointError
         from .ppo import NonFiniteError
         from .runlog import RunDirBusy
 
-        if isinstance(e, (CheckpointError, NonFiniteError, RunDirBusy)):
+        if isinstance(e, UnknownVehicleError):  # --vehicle: neither a shipped name nor a file path
+            print(f"quad-train: error: --vehicle: {e}", file=sys.stderr)
+            return 2
+        if isinstance(e, (CheckpointError, NonFiniteError, RunDirBusy, VehicleFileError)):
             print(f"quad-train: error: {e}", file=sys.stderr)
             return 1
         raise

@@ -627,7 +627,7 @@ def _check_args(args) -> None:
             if not Path(d).is_dir():
                 raise UsageError(f"{d}: not a directory; expected a sweep directory written by quad-compare run")
         check_out_dir(Path(args.figures), "--figures")
-        from quadpilot.sitl import check_output_path
+        from quadpilot.console import check_output_path
 
         try:
             check_output_path(Path(args.doc), "--doc")

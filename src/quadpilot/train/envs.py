@@ -45,7 +45,9 @@ class EnvConfig:
     """hover: reach and hold `home`; waypoint: start at `home`, reach a target drawn within
     `target_radius` of it; circle: follow a point moving round a circle about `home`."""
     vehicle: str | VehicleParams = "seed"
-    """Airframe: a preset name ("seed", "crazyflie") or a VehicleParams."""
+    """Airframe: a preset name ("seed", "crazyflie") or a VehicleParams (e.g. one read from a vehicle
+    file, `core.vehicle_file.load_vehicle_file`); either way checkpoints and ONNX metadata hold the
+    whole parameter set."""
     home: tuple[float, float, float] = HOME["hover"]
     """m, world ENU: hover target, waypoint start, circle centre."""
     episode_steps: int = 500

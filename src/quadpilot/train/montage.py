@@ -221,7 +221,7 @@ class BadFile(Exception):
 def _montage(args) -> int:
     import torch
 
-    from quadpilot.sitl import check_output_path
+    from quadpilot.console import check_output_path
     from quadpilot.viz import VizUnavailable, check_video_output, render_montage
 
     from .checkpoint import CheckpointError, list_snapshots, load_policy

@@ -967,7 +967,14 @@ def _start_fresh(args, explicit: dict, out: Path, argv: list[str]):
 
 def _resume(args, explicit: dict, out: Path, argv: list[str], may_change: tuple[str, ...]):
     from .checkpoint import load_for_resume
-    from .cli import UsageError, _check_resume_dir, _clean_stale_temps, _record_resume, _restore_curriculum
+    from .cli import (
+        UsageError,
+        _check_resume_dir,
+        _clean_stale_temps,
+        _record_resume,
+        _restore_curriculum,
+        _vehicle_clash,
+    )
 
     _check_resume_dir(out)
     ckpt, used, warning = load_for_resume(out)  # CheckpointError: a bad file, exit 1 (cli.main)
@@ -984,8 +991,7 @@ def _resume(args, explicit: dict, out: Path, argv: list[str], may_change: tuple[
         for k, v in explicit.items()
         if k not in may_change and v != getattr(stored, k)
     ]
-    if args.vehicle and args.vehicle != ckpt["env_config"]["vehicle"]["name"]:
-        clashes.append(f"--vehicle {args.vehicle} (checkpoint: {ckpt['env_config']['vehicle']['name']})")
+    clashes += _vehicle_clash(args, ckpt["env_config"])  # a name or a file's parameters, as PPO's resume
     if clashes:
         raise UsageError(
             f"a resumed run keeps its configuration; only {', '.join('--' + k.replace('_', '-') for k in may_change)} "
