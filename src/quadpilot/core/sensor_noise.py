@@ -164,7 +164,7 @@ BMI088 = ImuNoise(
 
 # A centimetre-level estimate, as a filter fusing the IMU with RTK GNSS (u-blox ZED-F9P data sheet:
 # RTK horizontal accuracy 0.01 m + 1 ppm CEP), motion capture or a Lighthouse system would give.
-# The numbers are assumed orders of magnitude (issue 7 asks for cm-level), not identified from logs.
+# The numbers are assumed orders of magnitude (centimetre level), not identified from logs.
 EKF_CM = EstimatorNoise(
     name="ekf_cm",
     pos_white=0.005,  # m, assumed

@@ -120,7 +120,7 @@ class DeployablePolicy(_Deployable):
     def __init__(self, policy: TrainedPolicy) -> None:
         super().__init__(policy)
         self.actor = policy.model.actor
-        # SAC (issue 7): the actor ends in Tanh, a = tanh(z); then u·√(1 + a) is computed as
+        # SAC: the actor ends in Tanh, a = tanh(z); then u·√(1 + a) is computed as
         # u·√(2p/(p + q)), p = e^(2·min(z, 0)), q = e^(−2·max(z, 0)): the same function without the
         # cancellation of 1 + tanh(z) near a = −1 (motor off), where float32 leaves 1 + a at 0 or
         # 6e-8 and the √ turns that into ~1e-4 of command that two runtimes would not agree on.

@@ -554,7 +554,7 @@ def ppo_state_dict(ppo: PPO) -> dict:
 
 
 def _randomization_state(batch) -> dict:
-    """Domain randomisation in flight (issue 7): each drone's plant and disturbances, so that a
+    """Domain randomisation in flight: each drone's plant and disturbances, so that a
     resumed run finishes its episodes on the plants they started with. Empty when off."""
     if batch.randomizer is None:
         return {}

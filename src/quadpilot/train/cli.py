@@ -120,7 +120,7 @@ def _upper_bounds() -> dict[str, int]:
 # Options a resumed run may change; everything else must match the checkpoint.
 RESUME_MAY_CHANGE = ("total_steps", "threads")
 # --algo: our PPO, a comparison baseline from another library trained on the same environment
-# with settings matched to the PPO preset, or our SAC (issue 7); each other than ppo is a module of
+# with settings matched to the PPO preset, or our SAC; each other than ppo is a module of
 # this package with train_from_cli(args, argv).
 ALGOS = {"ppo": None, "sb3": "sb3_baseline", "sac": "sac"}
 
@@ -227,7 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-# --- domain randomisation (issue 7) --------------------------------------------------------
+# --- domain randomisation ------------------------------------------------------------------
 
 
 def _add_randomize_option(p: argparse.ArgumentParser) -> None:
@@ -255,7 +255,7 @@ def _randomize_clash(args, env_config: dict) -> list[str]:
     return [] if stored == args.randomize else [f"--randomize {args.randomize} (checkpoint: {stored or 'off'})"]
 
 
-# --- network and sensors (issue 7: IMU noise and a recurrent policy) ----------------------
+# --- network and sensors ------------------------------------------------------------------
 
 
 def _add_sensor_options(p: argparse.ArgumentParser) -> None:

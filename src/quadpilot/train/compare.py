@@ -1,4 +1,4 @@
-"""quad-compare: our PPO against Stable-Baselines3 PPO with matched settings, across seeds (issue 6).
+"""quad-compare: our PPO against Stable-Baselines3 PPO with matched settings, across seeds.
 
     quad-compare run --preset fast --seeds 0,1,2 --out runs/compare/hover-fast
     quad-compare report runs/compare/hover-fast runs/compare/hover-seed001

@@ -198,7 +198,7 @@ class QuadBatch:
         self._omega = cfg.circle_speed / cfg.circle_radius
         self.noise_spec = cfg.noise
         self.noise: SensorNoiseState | None = None  # built at the first reset, from its rng
-        # domain randomisation (issue 7): plant parameters and disturbances redrawn per reset
+        # domain randomisation: plant parameters and disturbances redrawn per reset
         self.randomizer = (
             Randomizer(cfg.randomization, self.nominal, n, cfg.dt, self.dtype) if cfg.randomization else None
         )

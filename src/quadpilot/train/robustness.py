@@ -1,4 +1,4 @@
-"""Robustness of hover controllers to the plant (issue 7, domain randomisation).
+"""Robustness of hover controllers to the plant (domain randomisation).
 
 Three measurements, each the same for learned policies and for the runtime's classical fallback
 controller (`runtime.fallback.FallbackController`, which acts on the same observation):

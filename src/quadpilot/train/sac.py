@@ -23,7 +23,7 @@ stores their transitions, then `updates_per_step` gradient steps follow, so the 
 is updates_per_step / num_envs gradient steps per transition. The first `learning_starts`
 transitions use uniform random actions and no gradient steps.
 
-Defaults and the reasons for them (docs/comparison.md, section "SAC (issue 7)"): the paper's table 1
+Defaults and the reasons for them (docs/comparison.md, section "SAC"): the paper's table 1
 (1812.05905 appendix D: Adam lr 3·10⁻⁴ for all three, minibatch 256, γ 0.99, τ 0.005, one target
 update per gradient step, target entropy −|A|) with these changes, measured on hover: 64-wide
 networks instead of 256 (a gradient step of two 256×256 ReLU critics and actor costs about 4×

@@ -1,8 +1,8 @@
-"""SAC against our PPO on one task (issue 7): the table and the learning-curve figure of
-docs/comparison.md's section "SAC (issue 7)", from finished quad-train run directories.
+"""SAC against our PPO on one task: the table and the learning-curve figure of
+docs/comparison.md's section "SAC", from finished quad-train run directories.
 
-    python -m quadpilot.train.sac_compare --ppo runs/sac-issue7/ppo-seed{0,1,2} \\
-        --sac runs/sac-issue7/sac-seed{0,1,2} --png docs/comparison/sac-vs-ppo-hover.png
+    python -m quadpilot.train.sac_compare --ppo runs/sac-vs-ppo/ppo-seed{0,1,2} \\
+        --sac runs/sac-vs-ppo/sac-seed{0,1,2} --png docs/comparison/sac-vs-ppo-hover.png
 
 Each run is read from its own files: eval.json (final evaluation and the first periodic evaluation
 at ≥ 95 %, `first_success`) and metrics.csv (the periodic evaluations, `eval_success_rate` and

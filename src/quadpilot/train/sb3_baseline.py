@@ -1,12 +1,12 @@
 """Stable-Baselines3 PPO on our environment with settings matched to a `PPOConfig`: the comparison
-baseline of issue 6 (`quad-train --algo sb3`). Our PPO never imports this module.
+baseline (`quad-train --algo sb3`). Our PPO never imports this module.
 
 What is shared with our PPO is the environment and nothing else: the registered vector env
 (`gymnasium.make_vec("quadpilot/<Task>-v0", vectorization_mode="vector_entry_point")`, one NumPy
 call per step for all drones, as our PPO steps it) is handed to SB3 through `QuadSB3VecEnv`, an
 adapter to SB3's VecEnv API that reports time-limit truncations the way SB3 reads them
 (`infos[i]["TimeLimit.truncated"]` and `infos[i]["terminal_observation"]`), so SB3 bootstraps on
-truncation as ours does (SB3 ≥ 2.0, `OnPolicyAlgorithm.collect_rollouts`, GitHub issue #633).
+truncation as ours does (SB3 ≥ 2.0, `OnPolicyAlgorithm.collect_rollouts`, stable-baselines3 GitHub issue #633).
 
 `sb3_settings(cfg)` maps every `PPOConfig` field to SB3 (`FIELD_MAP` says how, or why it cannot be
 matched exactly; a test fails when PPOConfig gains a field that is not in it). SB3's algorithm runs
