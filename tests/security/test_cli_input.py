@@ -46,8 +46,8 @@ ENTRY = {
     "quad-train": "quadpilot.train.cli:main",
     "quad-export": "quadpilot.export.cli:main",
     "quad-demo": "quadpilot.demo:main",
-    "quad-compare": "quadpilot.train.compare:main",
-    "montage": "quadpilot.train.montage:main",
+    "quad-compare": "quadpilot.studies.compare:main",
+    "montage": "quadpilot.studies.montage:main",
 }
 # what the commands import lazily (torch._dynamo: on the first torch.optim.Adam), imported once in
 # the driver instead of in every child
@@ -646,7 +646,7 @@ def test_negative_numbers_are_flag_values(driven):
 def test_console_scripts_answer_a_bad_flag_cold():
     """Each console script from the virtual environment, cold, with an unknown flag."""
     commands = [[str(BIN / name), "--no-such-flag"] for name in ENTRY if name != "montage"]
-    commands.append([sys.executable, "-X", "dev", "-m", "quadpilot.train.montage", "--no-such-flag"])
+    commands.append([sys.executable, "-X", "dev", "-m", "quadpilot.studies.montage", "--no-such-flag"])
     with ThreadPoolExecutor(3) as pool:
         done = list(pool.map(lambda cmd: subprocess.run(cmd, capture_output=True, text=True, timeout=120), commands))
     for cmd, r in zip(commands, done, strict=True):

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from quadpilot.train import compare
+from quadpilot.studies import compare
 from quadpilot.train.ppo import PPOConfig
 from quadpilot.train.runlog import MetricsLog, write_json
 

@@ -1,5 +1,5 @@
 """Policy snapshots during training (quad-train --snapshot-every) and the learning montage drawn
-from them (python -m quadpilot.train.montage), on tiny budgets."""
+from them (python -m quadpilot.studies.montage), on tiny budgets."""
 
 import json
 import math
@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 import torch
 
+from quadpilot.studies.montage import flight_config, fly, pick_snapshots, steps_text
+from quadpilot.studies.montage import main as montage
 from quadpilot.train.checkpoint import (
     SNAPSHOTS,
     list_snapshots,
@@ -18,8 +20,6 @@ from quadpilot.train.checkpoint import (
 )
 from quadpilot.train.cli import main as train
 from quadpilot.train.envs import make_config
-from quadpilot.train.montage import flight_config, fly, pick_snapshots, steps_text
-from quadpilot.train.montage import main as montage
 from quadpilot.train.ppo import PPOConfig
 
 BATCH = 64 * 16  # transitions per update with TINY

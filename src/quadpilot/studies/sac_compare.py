@@ -1,7 +1,7 @@
 """SAC against our PPO on one task: the table and the learning-curve figure of
 docs/comparison.md's section "SAC", from finished quad-train run directories.
 
-    python -m quadpilot.train.sac_compare --ppo runs/sac-vs-ppo/ppo-seed{0,1,2} \\
+    python -m quadpilot.studies.sac_compare --ppo runs/sac-vs-ppo/ppo-seed{0,1,2} \\
         --sac runs/sac-vs-ppo/sac-seed{0,1,2} --png docs/comparison/sac-vs-ppo-hover.png
 
 Each run is read from its own files: eval.json (final evaluation and the first periodic evaluation
@@ -27,9 +27,9 @@ def _read(run: Path) -> dict:
     cfg = json.loads((run / "config.json").read_text())
     algo = cfg.get("algo", "ppo")
     if algo == "sac":
-        from .sac import read_metrics
+        from quadpilot.train.sac import read_metrics
     else:
-        from .runlog import read_metrics
+        from quadpilot.train.runlog import read_metrics
     m = read_metrics(run / "metrics.csv")
     first = ev.get("first_success") or {}
     seed = (cfg.get("sac") or cfg.get("ppo") or {}).get("seed")
@@ -116,7 +116,7 @@ def plot(runs: list[dict], png: Path, title: str) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from .checkpoint import atomic_write
+    from quadpilot.train.checkpoint import atomic_write
 
     fig = Figure(figsize=(10, 6), layout="constrained")
     FigureCanvasAgg(fig)
@@ -158,7 +158,7 @@ def plot(runs: list[dict], png: Path, title: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m quadpilot.train.sac_compare", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m quadpilot.studies.sac_compare", description=__doc__.split("\n\n")[0])
     p.add_argument("--ppo", nargs="*", type=Path, default=[], help="run directories of quad-train (PPO)")
     p.add_argument("--sac", nargs="*", type=Path, default=[], help="run directories of quad-train --algo sac")
     p.add_argument("--png", type=Path, help="write the learning-curve figure here")

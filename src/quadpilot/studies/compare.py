@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import UsageError, _Parser
+from quadpilot.train.cli import UsageError, _Parser
 
 ALGOS = ("ppo", "sb3")
 LABELS = {"ppo": "ours (PPO from scratch)", "sb3": "Stable-Baselines3 PPO"}
@@ -156,7 +156,7 @@ def plan(args) -> list[RunSpec]:
 
 
 def cmd_run(args, argv: list[str]) -> int:
-    from .runlog import write_json
+    from quadpilot.train.runlog import write_json
 
     ray = _import_ray() if args.engine == "ray" else None  # before anything is written
     out = Path(args.out)
@@ -223,7 +223,7 @@ class Run:
 
 
 def load_sweep(directory: Path) -> tuple[dict, list[Run]]:
-    from .runlog import read_metrics
+    from quadpilot.train.runlog import read_metrics
 
     sweep_path = directory / SWEEP
     if not sweep_path.exists():
@@ -274,8 +274,8 @@ def plot_sweep(runs: list[Run], title: str, out_path: Path) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from .checkpoint import atomic_write
-    from .cli import SUCCESS_BAR
+    from quadpilot.train.checkpoint import atomic_write
+    from quadpilot.train.cli import SUCCESS_BAR
 
     fig = Figure(figsize=(9, 6), layout="constrained")
     FigureCanvasAgg(fig)
@@ -495,8 +495,8 @@ def sweep_section(directory: Path, sweep: dict, runs: list[Run], figure: Path, d
 
 
 def settings_section(cfg_json: dict, preset: str) -> list[str]:
-    from .ppo import PPOConfig
-    from .sb3_baseline import IMPLICIT_ROWS, settings_rows
+    from quadpilot.train.ppo import PPOConfig
+    from quadpilot.train.sb3_baseline import IMPLICIT_ROWS, settings_rows
 
     cfg = PPOConfig.from_json(cfg_json)
     lines = [f"### Matched settings, preset `{preset}`", ""]
@@ -542,7 +542,7 @@ def render(directories: list[Path], figures: Path, doc: Path, argv: list[str]) -
 
 
 def cmd_report(args, argv: list[str]) -> int:
-    from .checkpoint import atomic_write
+    from quadpilot.train.checkpoint import atomic_write
 
     doc, figures = Path(args.doc), Path(args.figures)
     section = render([Path(d) for d in args.sweeps], figures, doc, argv)
@@ -562,8 +562,8 @@ def cmd_report(args, argv: list[str]) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .envs import TASKS
-    from .ppo import PRESETS
+    from quadpilot.train.envs import TASKS
+    from quadpilot.train.ppo import PRESETS
 
     p = _Parser(
         prog="quad-compare",
@@ -608,8 +608,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _check_args(args) -> None:
     """Every flag value, before anything is trained or written (one line, exit 2)."""
-    from .checkpoint import MAX_THREADS
-    from .cli import check_out_dir
+    from quadpilot.train.checkpoint import MAX_THREADS
+    from quadpilot.train.cli import check_out_dir
 
     limits = {"threads": MAX_THREADS, "workers": 256, "eval_every": 2**62, "total_steps": 2**62}  # quad-train's
     for name, hi in limits.items():

@@ -2,7 +2,7 @@
 run, side by side in one GIF.
 
     quad-train --task hover --snapshot-every 5 --out runs/hover-montage
-    python -m quadpilot.train.montage runs/hover-montage -o montage.gif
+    python -m quadpilot.studies.montage runs/hover-montage -o montage.gif
 
 Reads the run's snapshots (`RUN/snapshots/policy-<steps>.pt`, written by quad-train
 --snapshot-every), picks --snapshots of them evenly from the first (the untrained policy, 0 steps)
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import UsageError, _int_at_least, _Parser
+from quadpilot.train.cli import UsageError, _int_at_least, _Parser
 
 
 def pick_snapshots(snapshots: list[tuple[int, Path]], k: int) -> list[tuple[int, Path]]:
@@ -77,7 +77,7 @@ def flight_config(policy, seconds: float | None = None):
         changes["randomization"] = None
     cur = (policy.extra or {}).get("curriculum")
     if cur:
-        from .curriculum import CurriculumConfig
+        from quadpilot.train.curriculum import CurriculumConfig
 
         changes["target_radius"] = CurriculumConfig.from_json(cur["config"]).radii[int(cur["stage"])]
     if seconds is not None:
@@ -92,9 +92,8 @@ def fly(policy, env_cfg, seed: int = 0, label: str = ""):
     ends the episode there); result = {"crashed_at_s": s or None, "mean_error_m": over the last
     `success_window` seconds, or of the whole flight when it crashed sooner}."""
     from quadpilot.core import dynamics
+    from quadpilot.train.envs import QuadBatch
     from quadpilot.viz import FlightTrace
-
-    from .envs import QuadBatch
 
     batch = QuadBatch(env_cfg, 1)
     batch.reset(np.ones(1, bool), np.random.default_rng(seed))
@@ -146,7 +145,7 @@ def result_text(result: dict, window_s: float) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(
-        prog="python -m quadpilot.train.montage",
+        prog="python -m quadpilot.studies.montage",
         description=__doc__.split("\n\n")[0],
         epilog="\n\n".join(__doc__.split("\n\n")[1:]),
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -207,10 +206,10 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
     except UsageError as e:
-        print(f"quadpilot.train.montage: error: {e}", file=sys.stderr)
+        print(f"quadpilot.studies.montage: error: {e}", file=sys.stderr)
         return 2
     except BadFile as e:
-        print(f"quadpilot.train.montage: error: {e}", file=sys.stderr)
+        print(f"quadpilot.studies.montage: error: {e}", file=sys.stderr)
         return 1
 
 
@@ -222,9 +221,8 @@ def _montage(args) -> int:
     import torch
 
     from quadpilot.console import check_output_path
+    from quadpilot.train.checkpoint import CheckpointError, list_snapshots, load_policy
     from quadpilot.viz import VizUnavailable, check_video_output, render_montage
-
-    from .checkpoint import CheckpointError, list_snapshots, load_policy
 
     size = _size(args.size)
     if args.seconds is not None and not (math.isfinite(args.seconds) and 0 < args.seconds <= MAX_SECONDS):

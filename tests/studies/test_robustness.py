@@ -11,9 +11,7 @@ import pytest
 
 from quadpilot.core.params import SEED_VEHICLE
 from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG, SimConfig
-from quadpilot.train.checkpoint import load_policy
-from quadpilot.train.evaluate import evaluate
-from quadpilot.train.robustness import (
+from quadpilot.studies.robustness import (
     SCENARIOS,
     Cell,
     FallbackBank,
@@ -29,6 +27,8 @@ from quadpilot.train.robustness import (
     scenario_table,
     summarise,
 )
+from quadpilot.train.checkpoint import load_policy
+from quadpilot.train.evaluate import evaluate
 
 HOVER = Path(__file__).parents[2] / "models" / "hover" / "policy.pt"
 M = SEED_VEHICLE.mass
@@ -135,7 +135,7 @@ def test_the_command_writes_json_markdown_and_a_model_eval(tmp_path):
     import json
     import shutil
 
-    from quadpilot.train.robustness import main
+    from quadpilot.studies.robustness import main
 
     eval_json = tmp_path / "eval.json"
     shutil.copy(HOVER.with_name("eval.json"), eval_json)

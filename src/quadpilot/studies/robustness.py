@@ -14,7 +14,7 @@ controller (`runtime.fallback.FallbackController`, which acts on the same observ
 
 Regenerate the tables of docs/robustness.md:
 
-    python -m quadpilot.train.robustness --policy nominal=models/hover/policy.pt \\
+    python -m quadpilot.studies.robustness --policy nominal=models/hover/policy.pt \\
         --policy randomised=models/hover_dr/policy.pt --fallback --sitl --out docs/bench/robustness
 
 Wind acts as in the SITL simulator: through linear drag, F = drag·(wind − v), with quad-sitl's
@@ -44,8 +44,7 @@ from quadpilot.core.params import VehicleParams
 from quadpilot.core.randomization import RandomizationConfig
 from quadpilot.core.reward import crashed, hover_reward
 from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG
-
-from .envs import EnvConfig, QuadBatch
+from quadpilot.train.envs import EnvConfig, QuadBatch
 
 GRID_MASS = (0.85, 1.0, 1.15)
 GRID_K_F = (0.92, 1.0, 1.08)
@@ -233,7 +232,7 @@ def grid(masses=GRID_MASS, k_fs=GRID_K_F, winds=GRID_WIND) -> list[Cell]:
 
 def hover_config(vehicle: str | VehicleParams = "seed", dtype: str = "float32") -> EnvConfig:
     """The hover evaluation environment (the training defaults), without randomisation."""
-    from .envs import make_config
+    from quadpilot.train.envs import make_config
 
     return make_config("hover", vehicle=vehicle, dtype=dtype)
 
@@ -242,7 +241,7 @@ def evaluate_grid(controller, cfg: EnvConfig, cells: list[Cell], episodes: int =
     """Success and position error of `controller` on each cell, `episodes` episodes each, the
     same starts in every cell. Policies go through `train.evaluate.evaluate`, the rest through
     `fly`."""
-    from .evaluate import evaluate
+    from quadpilot.train.evaluate import evaluate
 
     out = []
     for cell in cells:
@@ -466,7 +465,7 @@ def scenario_table(rows: list[dict]) -> str:
 def write_model_eval(eval_path: Path, name: str, report: dict, policy) -> dict:
     """Add this harness's results for policy `name` to a shipped model's eval.json (models/README):
     `nominal` (100 episodes on the nominal plant, `evaluate`), `grid_in_process` and `sitl`."""
-    from .evaluate import evaluate
+    from quadpilot.train.evaluate import evaluate
 
     data = json.loads(Path(eval_path).read_text())
     data["nominal"] = evaluate(policy, dataclasses.replace(policy.env_config, randomization=None), episodes=100)
@@ -495,7 +494,7 @@ def _machine() -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m quadpilot.train.robustness", description=__doc__.split("\n\n")[0], allow_abbrev=False
+        prog="python -m quadpilot.studies.robustness", description=__doc__.split("\n\n")[0], allow_abbrev=False
     )
     p.add_argument(
         "--policy",
@@ -519,7 +518,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = p.parse_args(argv)
 
-    from .checkpoint import load_policy
+    from quadpilot.train.checkpoint import load_policy
 
     controllers = []
     onnx = {}
@@ -536,7 +535,10 @@ def main(argv: list[str] | None = None) -> int:
         p.error("nothing to measure: give --policy and/or --fallback")
     args.out.mkdir(parents=True, exist_ok=True)
     cells = grid()
-    report: dict = {"machine": _machine(), "command": " ".join(["python -m quadpilot.train.robustness", *sys.argv[1:]])}
+    report: dict = {
+        "machine": _machine(),
+        "command": " ".join(["python -m quadpilot.studies.robustness", *sys.argv[1:]]),
+    }
     t0 = time.perf_counter()
     report["grid"] = {c.name: evaluate_grid(c, cfg, cells, args.episodes) for c in controllers}
     report["grid_s"] = time.perf_counter() - t0
