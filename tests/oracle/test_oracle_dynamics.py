@@ -9,6 +9,7 @@ I·ω̇ = τ − ω × (I·ω); Euler angles with the mid-step rates; position p
 """
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -244,3 +245,103 @@ def test_a_batched_step_equals_n_single_steps(substeps):
         si, wi = step(s0[i : i + 1], w0[i : i + 1], cmd[i : i + 1], params.subset([i]), H, substeps)
         np.testing.assert_allclose(sb[i], si[0], rtol=0, atol=1e-12, err_msg=f"drone {i}")
         np.testing.assert_allclose(wb[i], wi[0], rtol=0, atol=1e-12, err_msg=f"drone {i}")
+
+
+# --- action → command ---------------------------------------------------------------------------
+
+
+def test_action_is_thrust_relative_to_hover():
+    """u = u_hover·√(1 + a) with a clipped to [−1, 1], then u clipped to [0, 1]: a = −1 is zero
+    thrust, 0 hover, +1 twice hover thrust (F ∝ u², so F/F_hover = 1 + a)."""
+    a = np.array([[-1.0, -0.5, 0.0, 0.5], [1.0, -3.0, 3.0, 0.0]])
+    u = dynamics.action_to_command(a, 0.5)
+    np.testing.assert_allclose(
+        u,
+        [
+            [0.0, 0.5 * math.sqrt(0.5), 0.5, 0.5 * math.sqrt(1.5)],
+            [0.5 * math.sqrt(2.0), 0.0, 0.5 * math.sqrt(2.0), 0.5],
+        ],
+    )
+    np.testing.assert_allclose((u / 0.5) ** 2, 1.0 + np.clip(a, -1.0, 1.0), rtol=0, atol=1e-12)
+    # a per-drone hover command (N, 1); twice hover thrust of a heavy drone would need u > 1: held at 1
+    u = dynamics.action_to_command(np.array([[1.0, 0.0, -1.0, 0.5], [1.0, 0.0, -1.0, 0.5]]), np.array([[0.8], [0.6]]))
+    np.testing.assert_allclose(
+        u, [[1.0, 0.8, 0.0, 0.8 * math.sqrt(1.5)], [0.6 * math.sqrt(2.0), 0.6, 0.0, 0.6 * math.sqrt(1.5)]]
+    )
+
+
+@pytest.mark.parametrize("kind", ["force", "torque"])
+def test_external_force_and_torque_keep_a_float32_state_float32(kind):
+    """An external push (world force / m, body torque) is cast to the state's dtype: a float32 batch
+    stays float32, and equals the float64 step to float32 precision. From hover, 0.5 N along +x for
+    10 ms gives Δvx = h·F/m; 0.01 N·m about x gives Δp = h·τ/I_xx."""
+    params = one(1)
+    s0 = state(z=1.0)
+    cmd = np.full((1, 4), U_HOVER)
+    ext = {kind: np.array([[0.5, 0.0, 0.0]] if kind == "force" else [[0.01, 0.0, 0.0]])}
+    s64, _ = step(s0, cmd, cmd, params, H, **ext)
+    s32, w32 = step(s0.astype(np.float32), cmd.astype(np.float32), cmd.astype(np.float32), params, H, **ext)
+    assert s32.dtype == np.float32 and w32.dtype == np.float32
+    np.testing.assert_allclose(s32, s64, rtol=1e-5, atol=1e-7)
+    if kind == "force":
+        assert float(s64[0, IDX["vx"]]) == pytest.approx(H * 0.5 / V.mass, rel=1e-12)
+    else:
+        assert float(s64[0, IDX["p"]]) == pytest.approx(H * 0.01 / V.ixx, rel=1e-12)
+
+
+def test_commands_outside_zero_one_are_motors_off_and_full_speed():
+    """Commands are clipped to [0, 1] before F = f_max·u²: −0.5 is motors off (free fall, not the
+    thrust of +0.5), 1.5 is full speed."""
+    s0 = state(z=10.0)
+    params = one()
+    off, _ = step(s0, np.zeros((1, 4)), np.full((1, 4), -0.5), params, H)
+    assert float(off[0, IDX["vz"]]) == pytest.approx(-GRAVITY * H, rel=1e-12)
+    full, _ = step(s0, np.ones((1, 4)), np.full((1, 4), 1.5), params, H)
+    ref, _ = step(s0, np.ones((1, 4)), np.ones((1, 4)), params, H)
+    np.testing.assert_array_equal(full, ref)
+    f_max = V.k_f * V.omega_max**2
+    assert float(full[0, IDX["vz"]]) == pytest.approx((4 * f_max / V.mass - GRAVITY) * H, rel=1e-12)
+
+
+def test_one_param_batch_steps_with_each_step_length_and_dtype_it_is_given():
+    """The per-drone constants derived from a ParamBatch depend on the step length (the motor lag's
+    e^(−h/τ)) and on the state's dtype: one batch used with h, then 2h, then float32 gives what a
+    fresh batch gives each time. Rotor from 0 towards command 1 with τ = 0.02 s: ω = 1 − e^(−h/τ)."""
+    lagged = replace(V, motor_tau=0.02)
+    shared = ParamBatch.from_preset(lagged, 1)
+    s0, w0, cmd = state(z=1.0), np.zeros((1, 4)), np.ones((1, 4))
+    for h in (H, 2 * H):
+        _, w = step(s0, w0, cmd, shared, h)
+        np.testing.assert_allclose(w, 1.0 - math.exp(-h / 0.02), rtol=1e-12)
+        np.testing.assert_array_equal(w, step(s0, w0, cmd, ParamBatch.from_preset(lagged, 1), h)[1])
+    s32, w32 = step(s0.astype(np.float32), w0.astype(np.float32), cmd.astype(np.float32), shared, H)
+    assert s32.dtype == np.float32 and w32.dtype == np.float32
+    np.testing.assert_allclose(w32, 1.0 - math.exp(-H / 0.02), rtol=1e-6)
+
+
+def test_motor_lag_decay_is_exact_in_float64_and_safe_for_lag_free_drones():
+    """ω ← ω_cmd + e^(−h/τ)·(ω − ω_cmd): from rest towards command 1 the rotor reaches 1 − e^(−h/τ)
+    after one step, computed in float64 even from float32 parameters (τ = 0.02 as float32 is
+    0.0199999995529651…). A lag-free drone in the same batch (τ = 0) follows its command exactly, and
+    no division by τ = 0 happens on the way (np.errstate raises on one)."""
+    batch = ParamBatch.from_preset(V, 2).with_entries([0], motor_tau=0.02)
+    s0, w0, cmd = np.tile(state(z=1.0), (2, 1)), np.zeros((2, 4)), np.ones((2, 4))
+    with np.errstate(all="raise"):
+        _, w = step(s0, w0, cmd, batch, H)
+    np.testing.assert_allclose(w[0], 1.0 - math.exp(-H / 0.02), rtol=1e-14)
+    np.testing.assert_array_equal(w[1], 1.0)
+    tau32 = float(np.float32(0.02))
+    _, w = step(s0[:1], w0[:1], cmd[:1], ParamBatch.from_preset(replace(V, motor_tau=0.02), 1).astype(np.float32), H)
+    np.testing.assert_allclose(w, 1.0 - math.exp(-H / tau32), rtol=1e-14)
+
+
+def test_yaw_wraps_from_plus_pi_to_minus_pi():
+    """Yaw is kept in [−π, π): from π − 0.001 at r = 1 rad/s, one 10 ms step reaches π + 0.009,
+    which is −π + 0.009."""
+    params = one()
+    s0 = state(z=1.0, yaw=math.pi - 0.001, r=1.0)
+    u = np.full((1, 4), U_HOVER)
+    s, _ = step(s0, u, u, params, H)
+    assert float(s[0, IDX["yaw"]]) == pytest.approx(-math.pi + 0.009, abs=1e-12)
+    s, _ = step(state(z=1.0, yaw=-math.pi + 0.001, r=-1.0), u, u, params, H)
+    assert float(s[0, IDX["yaw"]]) == pytest.approx(math.pi - 0.009, abs=1e-12)

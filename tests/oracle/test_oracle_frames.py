@@ -176,3 +176,95 @@ def test_quaternion_on_the_wire_by_hand():
         q = wire.rotmat_to_quaternion(m)
         assert q[0] >= 0
         np.testing.assert_allclose(wire.quaternion_to_rotmat(q), m, atol=1e-12)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_pitch_of_plus_minus_ninety_degrees_survives_rounding_beyond_one(sign):
+    """At pitch ∓90° the sine that arcsin inverts rounds to just beyond ±1 in floating point: the
+    quaternion (√½, 0, ±√½, 0) has 2·(w·y − z·x) = ±1.0000000000000002, and the matrix written out
+    from it R31 = 2·(x·z − w·y) = ∓1.0000000000000002. Both must give pitch ±90°, not NaN."""
+    h = math.sqrt(0.5)
+    w, x, y, z = h, 0.0, sign * h, 0.0
+    assert abs(2 * (w * y - z * x)) > 1.0  # the rounding this test is about
+    _, pitch, _ = frames.quaternion_to_euler(np.array([w, x, y, z]))
+    assert float(pitch) == sign * math.pi / 2
+    r = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    assert abs(r[2, 0]) > 1.0
+    _, pitch, _ = frames.rotmat_to_euler(r)
+    assert float(pitch) == sign * math.pi / 2
+
+
+def test_rotation_matrix_keeps_the_precision_of_its_angles():
+    """float32 angles give a float32 matrix; a float64 angle among float32 ones is not rounded to
+    float32 in the entries it enters: R31 = −sin θ, R32 = cos θ·sin φ, R21 = sin ψ·cos θ."""
+    r32, p32, y32 = np.float32(0.1), np.float32(0.2), np.float32(0.3)
+    assert frames.euler_to_rotmat(r32, p32, y32).dtype == np.float32
+    roll, pitch, yaw = 0.1 + 1e-9, 0.2 + 1e-9, 0.3 + 1e-9  # not float32 numbers
+    cp32 = float(np.cos(p32))  # what a float32 pitch contributes, exactly
+    m = frames.euler_to_rotmat(np.float64(roll), p32, y32)
+    assert m.dtype == np.float64
+    assert float(m[2, 1]) == pytest.approx(cp32 * math.sin(roll), rel=1e-15, abs=0)
+    m = frames.euler_to_rotmat(r32, np.float64(pitch), y32)
+    assert float(m[2, 0]) == -math.sin(pitch)
+    m = frames.euler_to_rotmat(r32, p32, np.float64(yaw))
+    assert float(m[1, 0]) == pytest.approx(math.sin(yaw) * cp32, rel=1e-15, abs=0)
+
+
+# rotations where Shepperd's method must pick its branch with care: half turns (w = 0), ties on the
+# diagonal, trace exactly 0 (a third of a turn about (1, 1, 1)), and near half turns
+def axis_angle(axis, angle) -> np.ndarray:
+    n = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)
+
+
+HARD_ROTATIONS = [
+    axis_angle(axis, angle)
+    for axis in ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1), (1, -2, 0.5))
+    for angle in (math.pi, math.pi - 1e-6, 2 * math.pi / 3, math.pi / 2, 1e-9)
+] + [np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])]  # trace 0
+
+
+def test_quaternion_of_hard_rotations_reproduces_the_matrix():
+    for r in HARD_ROTATIONS:
+        q = wire.rotmat_to_quaternion(r)
+        assert q[0] >= 0.0
+        assert float(np.linalg.norm(q)) == pytest.approx(1.0, abs=1e-15)
+        np.testing.assert_allclose(wire.quaternion_to_rotmat(q), r, rtol=0, atol=1e-12)
+
+
+def test_scalar_wire_quaternion_equals_the_matrix_path_at_hard_attitudes():
+    """`ned_frd_quaternion` (scalar Shepperd) against rotmat_to_quaternion(E·R·F) where the branches
+    meet: level headings every 45°, half turns in roll, nose straight up and down."""
+    for roll in (0.0, math.pi / 2, math.pi, -math.pi / 2, 2.0):
+        for pitch in (0.0, math.pi / 2, -math.pi / 2, 0.7):
+            for yaw in np.arange(-4, 5) * math.pi / 4:
+                r = frames.euler_to_rotmat(np.array(roll), np.array(pitch), np.array(yaw))
+                m = wire.rotmat_enu_flu_to_ned_frd(r)
+                q = np.array(wire.ned_frd_quaternion(roll, pitch, yaw))
+                assert q[0] >= 0.0 and float(np.linalg.norm(q)) == pytest.approx(1.0, abs=1e-15)
+                np.testing.assert_allclose(wire.quaternion_to_rotmat(q), m, rtol=0, atol=1e-12)
+
+
+def test_wire_rotations_are_computed_in_float64_and_normalised():
+    """A float32 rotation (rounded: columns off unit length by ~1e-7) gives the quaternion of its
+    float64 values, of unit length to 1e-15; a quaternion of any length gives the rotation of its
+    direction, computed in float64 from float32 input too."""
+    r = frames.euler_to_rotmat(np.array(0.3), np.array(-0.4), np.array(2.5))
+    r32 = r.astype(np.float32)
+    q = wire.rotmat_to_quaternion(r32)
+    np.testing.assert_allclose(q, wire.rotmat_to_quaternion(r32.astype(np.float64)), rtol=0, atol=1e-15)
+    assert float(np.linalg.norm(q)) == pytest.approx(1.0, abs=1e-15)
+    q64 = wire.rotmat_to_quaternion(r)
+    np.testing.assert_allclose(wire.quaternion_to_rotmat(2.5 * q64), r, rtol=0, atol=1e-12)
+    q32 = q64.astype(np.float32)
+    m = wire.quaternion_to_rotmat(q32)
+    assert m.dtype == np.float64
+    # (the norm it divides by is taken of the float32 input, hence 1e-6 and not 1e-15 here)
+    np.testing.assert_allclose(m, wire.quaternion_to_rotmat(q32.astype(np.float64)), rtol=0, atol=1e-6)

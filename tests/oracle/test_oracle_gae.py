@@ -149,3 +149,16 @@ def test_the_trainer_bootstraps_truncations_from_the_final_observation_and_scale
     np.testing.assert_allclose(adv, ADVANTAGES, rtol=0, atol=1e-6)
     np.testing.assert_allclose(ret, RETURNS, rtol=0, atol=1e-6)
     assert ppo.global_step == 8
+
+
+def test_the_defaults_are_gamma_0_99_and_lambda_0_95():
+    """Called without γ and λ, GAE uses the paper's γ = 0.99, λ = 0.95 (γλ = 0.9405): with only
+    δ2 = 1 non-zero, Â = ((γλ)², γλ, 1); one bootstrapped step of V(s') = 1 gives δ = γ = 0.99."""
+    r = np.array([[0.0], [0.0], [1.0]])
+    z = np.zeros((3, 1))
+    no = np.zeros((3, 1), bool)
+    adv, ret = compute_gae(r, z, z, no, no)
+    np.testing.assert_allclose(adv[:, 0], [0.88454025, 0.9405, 1.0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ret, adv, rtol=0, atol=0)
+    adv, _ = compute_gae(z[:1], z[:1], np.ones((1, 1)), no[:1], no[:1])
+    np.testing.assert_allclose(adv, [[0.99]], rtol=0, atol=1e-12)

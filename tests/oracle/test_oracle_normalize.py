@@ -94,3 +94,54 @@ def test_non_finite_rows_are_not_merged():
     np.testing.assert_allclose(rms.mean, [2.0, 3.0], atol=1e-9)
     np.testing.assert_allclose(rms.var, [1.0, 1.0], atol=1e-9)
     assert rms.count == pytest.approx(2.0)
+
+
+def test_float32_observations_are_accumulated_in_float64():
+    """Observations arrive as float32; the statistics are float64 sums. {1e8, 1, −1e8} has mean 1/3
+    and population variance (2·1e16 + 1 − 1/9·3)/3 ≈ 6.6667e15; summed in float32, 1e8 + 1 rounds
+    back to 1e8 and the mean comes out 0."""
+    rms = RunningMeanStd((1,), epsilon=1e-12)
+    rms.update(np.array([[1e8], [1.0], [-1e8]], np.float32))
+    np.testing.assert_allclose(rms.mean, [1.0 / 3.0], rtol=1e-9)
+    np.testing.assert_allclose(rms.var, [(2e16 + 1.0) / 3.0 - 1.0 / 9.0], rtol=1e-12)
+
+
+# statistics as a float32 checkpoint might hold them: 0.1f = 0.100000001490116…, 9 exactly
+F32_STATE = {"mean": np.float32([0.1]), "var": np.float32([9.0]), "count": 10, "clip": 100}
+
+
+def test_loaded_float32_statistics_normalise_in_float64():
+    """A float32 mean read from a checkpoint is held in float64: x − mean is not rounded to float32
+    before the division (that double rounding changes the last bit of ~1/3 of outputs)."""
+    rms = RunningMeanStd((1,))
+    rms.load_state_dict(F32_STATE)
+    x = np.float32([[62.65405], [21.327156], [45.89931]])
+    expected = ((x.astype(np.float64) - float(np.float32(0.1))) / math.sqrt(9.0 + 1e-8)).astype(np.float32)
+    np.testing.assert_array_equal(rms.normalize(x), expected)
+
+
+def test_loaded_float32_variance_and_count_merge_in_float64():
+    """After loading var = 0.1f (0.100000001490116…) at count 10, one sample at the mean leaves the
+    mean and gives var = 10·0.1f/11 = 0.0909090922637…; var·count in float32 rounds 1.0000000149 to 1."""
+    rms = RunningMeanStd((1,))
+    rms.load_state_dict({"mean": [0.0], "var": np.float32([0.1]), "count": 10, "clip": 10})
+    rms.update(np.zeros((1, 1)))
+    np.testing.assert_allclose(rms.mean, [0.0], atol=0)
+    np.testing.assert_allclose(rms.var, [10.0 * float(np.float32(0.1)) / 11.0], rtol=1e-14)
+    assert rms.count == 11.0
+
+
+def test_state_dict_round_trip_holds_the_numbers_as_copies():
+    rms = RunningMeanStd((2,), epsilon=1e-12, clip=4.0)
+    rms.update(np.array([[1.0, 10.0], [3.0, 20.0]]))
+    d = rms.state_dict()
+    np.testing.assert_allclose(d["mean"], [2.0, 15.0], atol=1e-9)
+    np.testing.assert_allclose(d["var"], [1.0, 25.0], atol=1e-9)
+    assert d["count"] == pytest.approx(2.0, abs=1e-9)
+    assert d["clip"] == 4.0
+    d["mean"][:] = 0.0  # a copy: the live statistics are not changed through it
+    np.testing.assert_allclose(rms.mean, [2.0, 15.0], atol=1e-9)
+    restored = RunningMeanStd((2,))
+    restored.load_state_dict(rms.state_dict())
+    x = np.array([[0.0, 40.0]])  # (0 − 2)/1 = −2, (40 − 15)/5 = 5 → clipped to 4
+    np.testing.assert_allclose(restored.normalize(x), [[-2.0, 4.0]], rtol=1e-6)

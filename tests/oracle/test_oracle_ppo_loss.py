@@ -21,7 +21,7 @@ import torch
 
 from quadpilot.train import recurrent_ppo
 from quadpilot.train.envs import make_config
-from quadpilot.train.ppo import PPO, PPOConfig
+from quadpilot.train.ppo import PPO, NonFiniteError, PPOConfig
 from quadpilot.train.sac import SAC, SACConfig, squashed_log_prob, temperature_loss
 
 EPS = 0.2
@@ -205,6 +205,174 @@ def test_the_entropy_bonus_raises_the_entropy():
     ppo.update(b)
     log_std = ppo.model.log_std.detach()
     np.testing.assert_allclose(log_std.numpy(), LOG_STD + 1e-3, rtol=0, atol=1e-6)  # Adam's first step: +lr
+
+
+def lstm_batch(ppo: PPO, seqs: int = 3, seed: int = 1) -> dict[str, torch.Tensor]:
+    """seqs sequences of ppo.seq_len steps, zero advantages, returns equal to the stored values."""
+    length, h = ppo.seq_len, ppo.cfg.lstm_hidden
+    g = torch.Generator().manual_seed(seed)
+    batch = {
+        "obs": torch.randn(length, seqs, ppo.obs_dim, generator=g),
+        "act": torch.randn(length, seqs, 4, generator=g) * 0.5,
+        "starts": torch.zeros(length, seqs, dtype=torch.bool),
+        **{k: torch.randn(seqs, h, generator=g) * 0.1 for k in recurrent_ppo.STATE_KEYS},
+    }
+    batch["starts"][0] = True
+    for k in ("logp", "adv", "ret", "val"):
+        batch[k] = torch.zeros(length, seqs)
+    return batch
+
+
+def test_the_linear_schedule_decays_the_learning_rate_to_zero():
+    """lr_k = lr·max(0, 1 − k/N) at update k of N = ⌈total_steps / batch_size⌉ (here 8 steps per
+    batch, 80 total: N = 10)."""
+    ppo = make_ppo(lr_schedule="linear", lr=1e-3, total_steps=80)
+    assert ppo.cfg.num_updates == 10
+    b = hand_batch(ppo)
+    for k, lr in ((0, 1e-3), (1, 9e-4), (4, 6e-4), (10, 0.0), (25, 0.0)):
+        ppo.updates = k
+        m = ppo.update(b)
+        assert m["lr"] == pytest.approx(lr, abs=1e-15), k
+        assert ppo.opt.param_groups[0]["lr"] == pytest.approx(lr, abs=1e-15)
+        assert ppo.updates == k + 1
+    constant = make_ppo(lr_schedule="constant", lr=1e-3, total_steps=80)
+    constant.updates = 5
+    assert constant.update(hand_batch(constant))["lr"] == 1e-3
+
+
+def test_recurrent_non_finite_sequences_are_skipped_and_counted_in_steps():
+    """A sequence holding a NaN is left out whole; the count is in transitions: 1 sequence × 2 steps."""
+    ppo = make_ppo(arch="lstm", lstm_hidden=4, rollout_steps=2, minibatch_size=6)
+    batch = lstm_batch(ppo)
+    batch["obs"][1, 2, 0] = float("nan")  # step 1 of sequence 2
+    m = ppo.update(batch)
+    assert m["nonfinite_skipped"] == 2
+    assert math.isfinite(m["policy_loss"])
+
+
+def test_recurrent_minibatches_hold_whole_sequences():
+    """minibatch_size 2 with sequences of 2 steps: one sequence per minibatch, so 3 sequences give 3
+    optimiser steps. With zero advantages and value weight only the entropy bonus moves log σ, by lr
+    per Adam step (a constant gradient): 3 steps of 1e-3."""
+    ppo = make_ppo(arch="lstm", lstm_hidden=4, rollout_steps=2, minibatch_size=2, vf_coef=0.0, ent_coef=0.1, lr=1e-3)
+    ppo.update(lstm_batch(ppo))
+    log_std = ppo.model.log_std.detach().numpy()
+    np.testing.assert_allclose(log_std, LOG_STD + 3e-3, rtol=0, atol=1e-6)
+
+
+def test_normalised_advantages_by_hand():
+    """Per minibatch Â ← (Â − mean)/(std + 1e-8), std with Bessel's correction (torch's default).
+    Advantages of mean 0.5 so that the centring matters; the clipped surrogate of the hand ratios
+    then recomputed row by row."""
+    advs = [a + 0.5 for a in ADVS]
+    mean = sum(advs) / 6
+    std = math.sqrt(sum((a - mean) ** 2 for a in advs) / 5)  # √(12/5) = 1.549193…
+    norm = [(a - mean) / (std + 1e-8) for a in advs]
+    expected = -sum(min(r * a, min(max(r, 1 - EPS), 1 + EPS) * a) for r, a in zip(RATIOS, norm, strict=True)) / 6
+    assert expected == pytest.approx(POLICY_LOSS / math.sqrt(12 / 5), rel=1e-6)  # mean 0 after centring
+    ppo = make_ppo(normalize_adv=True)
+    b = mlp_batch(ppo)
+    b = set_targets(b, b["logp"], b["val"], RATIOS, advs, VALUE_ERR, VALUE_DELTA)
+    m = ppo.update(b)
+    assert m["policy_loss"] == pytest.approx(expected, abs=1e-6)
+
+
+def test_clipped_value_loss_when_the_value_fell_by_more_than_epsilon():
+    """Rows (e, Δ): (0.5, −0.3): V_clip − R = 0.5 − (−0.3 + 0.2) = 0.6, max(0.25, 0.36) = 0.36;
+    (−0.5, 0.3): −0.6, 0.36; (0.5, 0.1) inside the clip: 0.25; three zeros. ½·0.97/6."""
+    ppo = make_ppo(clip_value=True)
+    b = mlp_batch(ppo)
+    b = set_targets(b, b["logp"], b["val"], RATIOS, ADVS, [0.5, -0.5, 0.5, 0, 0, 0], [-0.3, 0.3, 0.1, 0, 0, 0])
+    assert ppo.update(b)["value_loss"] == pytest.approx(0.5 * 0.97 / 6, abs=1e-6)
+
+
+def test_only_whole_minibatches_are_stepped():
+    """8 transitions in minibatches of 3: two optimiser steps per epoch (the 2 left over are drawn in
+    another order next epoch). Entropy bonus only: log σ rises by lr per Adam step, 2e-3."""
+    ppo = make_ppo(minibatch_size=3, vf_coef=0.0, ent_coef=0.1, lr=1e-3)
+    ppo.update(mlp_batch(ppo, n=8, seed=3))
+    np.testing.assert_allclose(ppo.model.log_std.detach().numpy(), LOG_STD + 2e-3, rtol=0, atol=1e-6)
+
+
+def test_non_finite_losses_skip_their_step_and_are_counted():
+    """Finite data whose ratio overflows: old log π = −1e30 makes r = e^(1e30) = ∞, and with
+    negative advantages −Â·r = +∞ wins the max. Both minibatches of the epoch are skipped (2), the
+    weights are not touched; a batch with nothing finite is skipped whole without a step."""
+    ppo = make_ppo(minibatch_size=3)
+    before = [p.detach().clone() for p in ppo.model.parameters()]
+    b = mlp_batch(ppo)
+    b["logp"] = torch.full_like(b["logp"], -1e30)
+    b["adv"] = torch.full_like(b["adv"], -1.0)
+    m = ppo.update(b)
+    assert m["nonfinite_skipped"] == 2
+    assert all(torch.equal(p0, p1) for p0, p1 in zip(before, ppo.model.parameters(), strict=True))
+    nan = mlp_batch(ppo)
+    nan["ret"] = torch.full_like(nan["ret"], float("nan"))
+    m = make_ppo(minibatch_size=3).update(nan)
+    assert m["nonfinite_skipped"] == 6 and math.isnan(m["policy_loss"])
+
+
+def test_overflowing_gradients_skip_their_step_and_are_counted():
+    """A finite loss whose gradient overflows float32: advantages of 1e20 give a policy loss of
+    about −1e20 but a gradient norm of ∞. Both minibatches are skipped, the weights not touched."""
+    ppo = make_ppo(minibatch_size=3)
+    before = [p.detach().clone() for p in ppo.model.parameters()]
+    b = mlp_batch(ppo)
+    b["adv"] = torch.full_like(b["adv"], 1e20)
+    assert ppo.update(b)["nonfinite_skipped"] == 2
+    assert all(torch.equal(p0, p1) for p0, p1 in zip(before, ppo.model.parameters(), strict=True))
+
+
+def test_consecutive_non_finite_updates_abort_after_the_configured_count():
+    """Every update counts; max_nonfinite_updates = 3 non-finite updates in a row raise NonFiniteError
+    naming the count, the skipped transitions and steps, and what to do."""
+    ppo = make_ppo(max_nonfinite_updates=3)
+    b = mlp_batch(ppo)
+    b["adv"] = torch.full_like(b["adv"], 1e20)
+    ppo.update(b)
+    ppo.update(b)
+    assert ppo.updates == 2
+    with pytest.raises(NonFiniteError) as info:
+        ppo.update(b)
+    message = str(info.value)
+    assert message.startswith("3 consecutive updates met NaN/Inf (this one: 0 non-finite transitions, 1 skipped")
+    assert message.endswith("Lower the learning rate or check the environment and reward for NaN.")
+
+
+def test_target_kl_stops_the_epochs_early():
+    """approx_kl of the hand batch is 0.064 at its first step: with target_kl 0.01 the update stops
+    after the first of 3 epochs (one Adam step), without it all 3 epochs run."""
+    steps = {}
+    for target in (0.01, None):
+        ppo = make_ppo(epochs=3, target_kl=target)
+        m = ppo.update(hand_batch(ppo))
+        steps[target] = ppo.opt.state[ppo.model.log_std]["step"].item()
+        if target is not None:
+            assert m["approx_kl"] == pytest.approx(APPROX_KL, abs=1e-5)  # the one step's value
+    assert steps == {0.01: 1, None: 3}
+
+
+@pytest.mark.parametrize(
+    "ret, val, expected",
+    [
+        # y − v = (0, 0, 0, 0, 0, −1): Var = 1/6 (Bessel); Var(y) of 1..6 = 3.5; 1 − (1/6)/3.5 = 20/21
+        ([1, 2, 3, 4, 5, 6], [1, 2, 3, 4, 5, 7], 20 / 21),
+        ([1, 3], [1, 2], 0.75),  # Var(y) = 2, Var((0, 1)) = 0.5
+        ([2, 2, 2], [1, 2, 3], float("nan")),  # Var(y) = 0: undefined
+    ],
+)
+def test_explained_variance_by_hand(ret, val, expected):
+    """explained_variance = 1 − Var(R − V_old)/Var(R) over the batch's transitions."""
+    n = len(ret)
+    ppo = make_ppo(minibatch_size=n)
+    b = mlp_batch(ppo, n=n)
+    b["ret"] = torch.tensor(ret, dtype=torch.float32)
+    b["val"] = torch.tensor(val, dtype=torch.float32)
+    ev = ppo.update(b)["explained_variance"]
+    if math.isnan(expected):
+        assert math.isnan(ev)
+    else:
+        assert ev == pytest.approx(expected, abs=1e-6)
 
 
 # --- SAC ----------------------------------------------------------------------------------------

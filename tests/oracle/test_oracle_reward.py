@@ -137,3 +137,28 @@ def test_circle_reward_by_hand():
         circle_state(1.0, 0.0, 0.0, 0.5), np.zeros((1, 3)), np.array([False]), np.zeros(2), 1.0, 0.5, CFG
     )
     assert float(best[0]) == pytest.approx(2.5, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "z, roll, pitch, err, expected",
+    [
+        (0.0, 0.0, 0.0, (0.0, 0.0, 0.0), False),  # on the ground is not below it
+        (0.5, 0.0, 0.0, (0.0, 0.0, 0.0), False),
+        (-1e-9, 0.0, 0.0, (0.0, 0.0, 0.0), True),
+        (1.0, math.radians(60.0), 0.0, (0.0, 0.0, 0.0), False),  # exactly 60° is not beyond it
+        (1.0, 0.0, -math.radians(60.0), (0.0, 0.0, 0.0), False),
+        (1.0, 0.0, 0.0, (3.0, 4.0, 0.0), False),  # exactly 5 m (d² = 25) is still inside
+    ],
+)
+def test_crash_limits_are_strict(z, roll, pitch, err, expected):
+    """A crash is altitude < 0, tilt > 60°, distance > 5 m: each boundary itself is not one."""
+    s = np.zeros((1, 12))
+    s[0, 2], s[0, 6], s[0, 7] = z, roll, pitch
+    assert bool(crashed(s, np.array([err], float), CFG)[0]) is expected
+
+
+def test_circle_errors_about_a_centre_off_both_axes():
+    """Centre (2, −1), radius 1: the point (2.6, −0.2) is ρ = √(0.6² + 0.8²) = 1 from it (e_R = 0);
+    moving with v = (−0.8, 0.6) it goes counter-clockwise at (0.6·0.6 − 0.8·(−0.8))/1 = 1.0 m/s."""
+    e_r, e_v = circle_errors(circle_state(2.6, -0.2, -0.8, 0.6), np.array([2.0, -1.0]), 1.0, 0.25)
+    np.testing.assert_allclose([e_r[0], e_v[0]], [0.0, 0.75], atol=1e-12)
