@@ -41,6 +41,22 @@ class Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
+def int_in(lo: int, hi: int):
+    """An argparse type: an integer in [lo, hi], else a one-line error saying the range."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected {lo} to {hi:,}, got {v:,}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
 def check_output_path(path: Path, flag: str, *, directory: bool = False) -> None:
     """Raise ValueError (one line naming `flag`) unless `path` can be written: a file whose parent
     directory exists and takes a new file, not an existing directory (`directory`: a directory that

@@ -5,30 +5,16 @@ Exit codes: 0 done; 2 a bad flag (one line on stderr).
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
 import numpy as np
 
 from quadpilot.console import Parser, UsageError
+from quadpilot.console import int_in as _int_in
 
 MAX_ENVS = 1 << 16  # quad-train's bound (train.cli.MAX_ENVS): 65 536 drones are ~5 MB of state
 MAX_STEPS = 1_000_000
-
-
-def _int_in(lo: int, hi: int):
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"expected {lo} to {hi:,}, got {v:,}")
-        return v
-
-    parse.__name__ = "integer"
-    return parse
 
 
 def main(argv: list[str] | None = None) -> int:

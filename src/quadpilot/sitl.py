@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from quadpilot.console import Parser, UsageError, check_output_path
+from quadpilot.console import int_in as _int_in
 
 SHIPPED_HOVER = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"
 MAX_EPISODES = 100_000
@@ -64,20 +65,6 @@ SIM_FLAGS = {
     "--estimator-noise": None,
     "--vehicle": "NAME|FILE.toml",
 }
-
-
-def _int_in(lo: int, hi: int):
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"expected {lo} to {hi:,}, got {v:,}")
-        return v
-
-    parse.__name__ = "integer"
-    return parse
 
 
 def _seconds(text: str) -> float:
