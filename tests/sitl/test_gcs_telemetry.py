@@ -30,11 +30,18 @@ def test_a_pymavlink_ground_station_reads_attitude_and_position_during_a_flight(
     got: dict[str, list] = {}
     stop = threading.Event()
 
+    # a lockstep flight can end before this thread is ever scheduled on a busy machine: the
+    # datagrams wait in the socket (made large enough for all of them), and the reader drains it
+    # until it has been quiet for 0.3 s after the flight ends
+    gcs.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+
     def listen():
-        while not stop.is_set():
-            m = gcs.recv_match(blocking=True, timeout=0.05)
+        while True:
+            m = gcs.recv_match(blocking=True, timeout=0.3)
             if m is not None:
                 got.setdefault(m.get_type(), []).append(m)
+            elif stop.is_set():
+                return
 
     reader = threading.Thread(target=listen, daemon=True)
     reader.start()
@@ -43,7 +50,7 @@ def test_a_pymavlink_ground_station_reads_attitude_and_position_during_a_flight(
         log = node.fly(SafetyMonitor(load_policy(SHIPPED_HOVER, "numpy")))
     finally:
         stop.set()
-        reader.join(2)
+        reader.join(10)
         sim.stop()
         thread.join(5)
         gcs.close()
