@@ -1,0 +1,482 @@
+"""The vehicle's command logic: a PX4-like commander and navigator for the subset a ground station uses.
+
+Pure logic: no sockets, no clock of its own. The owner (the node) calls
+- `handle(msg, now)` with each parsed MAVLink message from the ground station → messages to send;
+- `step(state, home, now, thrust)` once per control step with the vehicle's 12-state (ENU/FLU,
+  position relative to home), home, the time and the collective thrust last commanded → messages
+  to send (telemetry, events), after which `setpoint` is what the policy flies to;
+and sends what they return. Every message it builds comes from its own pymavlink MAVLink instance
+(system and component id of the vehicle, 1 and 1 by default): the owner sends them with its
+link's `mav.send(msg)`.
+
+The rules, and where they come from (commands: `commands`):
+- HEARTBEAT as PX4 sends it (src/modules/mavlink/streams/HEARTBEAT.hpp): MAV_TYPE_QUADROTOR,
+  MAV_AUTOPILOT_PX4, base_mode CUSTOM_MODE_ENABLED (+ SAFETY_ARMED when armed, + the AUTO or POSCTL
+  flags), custom_mode = main << 16 | sub << 24 (src/modules/commander/px4_custom_mode.h: AUTO = 4
+  with sub-modes 2 TAKEOFF, 3 LOITER (Hold), 4 MISSION, 5 RTL, 6 LAND; POSCTL = 3), system_status
+  STANDBY disarmed, ACTIVE armed, CRITICAL in a failsafe. Sent at 1 Hz and at once on a change.
+- Auto-disarm (commander_params.yaml): COM_DISARM_LAND s after landing, COM_DISARM_PRFLT s after
+  arming without taking off. The motors idle (`Setpoint.motors_enabled` False) while landed and not
+  taking off, and from ground contact on during a landing: PX4's position controller idles once the
+  land detector says maybe-landed; a policy has no thrust ramp-down of its own, and on the ground
+  with a descent commanded (see `setpoint`) the vehicle cannot be anywhere but on the ground.
+- Missions (navigator/mission.cpp): started in the air at the current item, on the ground with a
+  take-off first; MISSION_CURRENT on every change and at 1 Hz, MISSION_ITEM_REACHED per item (a
+  land or return item at touchdown), repeated with MISSION_CURRENT up to 10 times
+  (mavlink_mission.cpp); leaving Mission mode pauses it, Mission mode again resumes it; the end
+  holds (or stays landed). Uploads and clears are refused while it is flown.
+- Ground-station link loss (commander_params.yaml COM_DL_LOSS_T, NAV_DLL_ACT, COM_FAIL_ACT_T; PX4's
+  failsafe framework holds for COM_FAIL_ACT_T "for the user to realize" before the action): no
+  message from the ground station for COM_DL_LOSS_T s while flying → Hold; still none after
+  COM_FAIL_ACT_T s more → NAV_DLL_ACT (1 Hold, 2 Return, 3 Land). A message during the hold
+  resumes what was being flown; after the action the ground station takes over with a new command.
+  Which clock: the one the owner passes (simulated time, which runs with the wall clock in a
+  real-time simulation).
+Parameters: `params`; missions: `missions` and `navigator`; the moving target and the land
+detector: `setpoint`; telemetry: `streams`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from quadpilot.link.frames import Home
+
+from . import missions, navigator, streams
+from .commands import (
+    ACCEPTED,
+    DENIED,
+    HOLD,
+    LAND,
+    MISSION,
+    MODE_NAMES,
+    POSCTL,
+    RTL,
+    TEMP_REJECTED,
+    CommandHandlers,
+    enu_yaw,
+)
+from .navigator import Navigator
+from .params import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable
+from .setpoint import LandDetector, LandLimits, Mover
+
+M = mavlink2
+_AUTO_FLAGS = M.MAV_MODE_FLAG_AUTO_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED | M.MAV_MODE_FLAG_GUIDED_ENABLED
+_POSCTL_FLAGS = (
+    M.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED | M.MAV_MODE_FLAG_GUIDED_ENABLED
+)
+
+
+class BadVehicleState(ValueError):
+    """`step` was given a state, thrust or time that cannot be one (the node passes only states that
+    passed link.wire's checks; this guards the target the policy flies to against anything else)."""
+
+
+@dataclass(frozen=True)
+class CommanderConfig:
+    """How the commander behaves where PX4 has no parameter for it."""
+
+    lead_m: float = 0.75
+    """m, the furthest the target runs ahead of the vehicle (setpoint.Mover): inside the 1 m ball the
+    policies were trained to fly in from (core.mission.HOVER_START_RADIUS), with a margin."""
+    arrival_dwell_s: float = 0.5
+    """s the vehicle must stay within the acceptance radii before a goal counts as reached."""
+    ground_alt_max_m: float | None = 0.5
+    """m above home below which the vehicle may be on the ground (arming, land detection); the
+    ground is where home is. None: no altitude check (uneven ground)."""
+    land_trigger_s: float = 1.0
+    """LNDMC_TRIG_TIME (PX4 land_detector_params_mc.c default); each detector stage takes a third."""
+    repeat_window_s: float = 2.0
+    """s during which a resent COMMAND_LONG (confirmation > 0) gets the first answer again."""
+    params: dict = field(default_factory=dict)
+    """Parameter values other than PX4's defaults, e.g. MPC_THR_HOVER of the vehicle."""
+    system_id: int = 1
+    component_id: int = 1  # MAV_COMP_ID_AUTOPILOT1
+    flight_sw_version: int = 0
+    uid: int = 0
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """What the policy flies to: position (3,) and velocity (3,) ENU m from home, yaw rad ENU
+    (the hover policies have no yaw input; carried for those that will), armed, and whether the
+    motors run (False: idle, on the ground or after touchdown)."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    yaw: float
+    armed: bool
+    motors_enabled: bool
+
+
+class Commander(CommandHandlers):
+    """See the module docstring; `setpoint` is the policy's target after each `step`."""
+
+    def __init__(self, cfg: CommanderConfig | None = None) -> None:
+        self.cfg = cfg = cfg or CommanderConfig()
+        self.mav = M.MAVLink(None, srcSystem=cfg.system_id, srcComponent=cfg.component_id)
+        self.params = ParamTable(self.mav, cfg.params)
+        self.missions = missions.MissionTransfer(self.mav)
+        self.streams = streams.Streams()
+        self.mover = Mover(cfg.lead_m)
+        self.nav = Navigator(self.mover, self.params, cfg.arrival_dwell_s)
+        self.detector = LandDetector()
+        self.armed, self.mode, self.landed, self.motors = False, HOLD, True, False
+        self.state: np.ndarray | None = None
+        self.home: Home | None = None
+        self.now = 0.0
+        self._last_step: float | None = None
+        self.yaw = 0.0
+        self.armed_at = self.landed_at = 0.0
+        self.flown = False  # left the ground since arming
+        self.mission_seq, self.mission_state, self.reached = 0, M.MISSION_STATE_NO_MISSION, -1
+        self._reached_resends = 0
+        self._mission_version = 0
+        self.last_gcs: float | None = None
+        self.failsafe: str | None = None  # None, "hold" (waiting COM_FAIL_ACT_T) or "action"
+        self.failsafe_at = 0.0
+        self.dropped: Counter = Counter()
+        self.received = 0
+        self._recent: dict = {}
+        self._out: list = []
+
+    # --- outputs ---------------------------------------------------------------------------------
+    @property
+    def setpoint(self) -> Setpoint:
+        return Setpoint(self.mover.ref.copy(), self.mover.velocity.copy(), self.yaw, self.armed, self.motors)
+
+    @property
+    def landed_state(self) -> int:
+        if not self.armed or self.landed:
+            return M.MAV_LANDED_STATE_ON_GROUND
+        if self.nav.taking_off:
+            return M.MAV_LANDED_STATE_TAKEOFF
+        if self.nav.landing:
+            return M.MAV_LANDED_STATE_LANDING
+        return M.MAV_LANDED_STATE_IN_AIR
+
+    def _text(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
+        self._out.append(self.mav.statustext_encode(severity, text.encode()[:50]))
+
+    def heartbeat(self):
+        main, sub = self.mode
+        base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (_POSCTL_FLAGS if main == 3 else _AUTO_FLAGS)
+        if self.armed:
+            base |= M.MAV_MODE_FLAG_SAFETY_ARMED
+        status = M.MAV_STATE_CRITICAL if self.failsafe else (M.MAV_STATE_ACTIVE if self.armed else M.MAV_STATE_STANDBY)
+        return self.mav.heartbeat_encode(
+            M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, base, main << 16 | sub << 24, status
+        )
+
+    def _set_mode(self, mode: tuple) -> None:
+        if mode != self.mode:
+            self.mode = mode
+            self._out.append(self.heartbeat())
+
+    def _message(self, msg_id: int):
+        """The message `msg_id` now, or None when it needs a state or home not known yet."""
+        s, home, mav, now = self.state, self.home, self.mav, self.now
+        if msg_id == streams.HEARTBEAT:
+            return self.heartbeat()
+        if msg_id == streams.AUTOPILOT_VERSION:
+            return streams.autopilot_version(mav, self.cfg.flight_sw_version, self.cfg.uid)
+        if msg_id == streams.SYS_STATUS:
+            return streams.sys_status(
+                mav, self._armable() is None or self.armed, sum(self.dropped.values()), self.received
+            )
+        if msg_id == streams.EXTENDED_SYS_STATE:
+            return streams.extended_sys_state(mav, self.landed_state)
+        if msg_id == streams.MISSION_CURRENT:
+            return self._mission_current()
+        if s is None or home is None:
+            return None
+        if msg_id == streams.HOME_POSITION:
+            return streams.home_position(mav, home, now)
+        if msg_id == streams.GPS_RAW_INT:
+            return streams.gps_raw_int(mav, s, home, now)
+        if msg_id == streams.GLOBAL_POSITION_INT:
+            return streams.global_position_int(mav, s, home, now)
+        if msg_id == streams.ATTITUDE:
+            return streams.attitude(mav, s, now)
+        if msg_id == streams.ATTITUDE_QUATERNION:
+            return streams.attitude_quaternion(mav, s, now)
+        if msg_id == streams.LOCAL_POSITION_NED:
+            return streams.local_position_ned(mav, s, now)
+        raise ValueError(f"message {msg_id} cannot be built")
+
+    def _mission_current(self):
+        n = len(self.missions.items)
+        mode = 1 if self.mode == MISSION else 2  # MAVLink MISSION_CURRENT.mission_mode
+        return self.mav.mission_current_encode(self.mission_seq, n if n else 65535, self.mission_state, mode)
+
+    # --- input ---------------------------------------------------------------------------------------
+    def handle(self, msg, now: float) -> list:
+        """One message from the ground station → the messages to send in answer."""
+        self.now = now
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            self.dropped["bad_data"] += 1
+            return []
+        target = getattr(msg, "target_system", 0)
+        comp = getattr(msg, "target_component", 0)
+        if target not in (0, self.cfg.system_id) or comp not in (0, self.cfg.component_id):
+            self.dropped["not_for_us"] += 1
+            return []
+        self.received += 1
+        self._link_alive(now)
+        handler = self._HANDLERS.get(kind)
+        if handler is None:
+            self.dropped[f"unexpected_{kind.lower()}"] += 1
+        else:
+            getattr(self, handler)(msg)
+        out, self._out = self._out, []
+        return out
+
+    def _on_heartbeat(self, msg) -> None:
+        """Only proof of life: the link-loss clock was restarted in `handle`."""
+
+    def _on_ping(self, msg) -> None:
+        """PING with target 0 is a request (MAVLink common.xml, PING): answered with the same time
+        and sequence, addressed to the sender. MAVSDK sends them to measure the link."""
+        if msg.target_system == 0:
+            self._out.append(self.mav.ping_encode(msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _on_params(self, msg) -> None:
+        replies, texts = self.params.handle(msg)
+        self._out += replies
+        for t in texts:
+            self._text(t, M.MAV_SEVERITY_WARNING)
+
+    def _on_mission(self, msg) -> None:
+        replies, texts = self.missions.handle(msg, self.now)
+        self._out += replies
+        for t in texts:
+            self._text(t, M.MAV_SEVERITY_WARNING)
+        self._mission_changed()
+
+    # --- arming, missions ----------------------------------------------------------------------------
+    def _arm(self) -> None:
+        self.armed, self.flown, self.armed_at = True, False, self.now
+        self.mover.reset(self.state[0:3])
+        self.yaw = float(self.state[8])
+        self.nav.hold()
+        if self.mode == MISSION and self.missions.items:
+            self._start_mission(None)
+        elif self.mode != POSCTL:
+            self.mode = HOLD
+        self._out.append(self.heartbeat())
+
+    def _disarm(self) -> None:
+        self.armed, self.motors = False, False
+        self.nav.hold()
+        if self.state is not None:
+            self.mover.reset(self.state[0:3])
+        self._leave_mission()
+        self.failsafe = None
+        self.nav.freeze(False)
+        self.mode = HOLD  # a new flight starts from Hold (MAVSDK arms from there)
+        self._out.append(self.heartbeat())
+
+    def arm_in_air(self) -> None:
+        """Start armed and holding where the vehicle is (a simulator that starts in the air)."""
+        if self.state is None:
+            raise ValueError("arm_in_air needs a first step() with the vehicle's state")
+        self._arm()
+        self.landed, self.flown, self.motors = False, True, True
+        self.detector.landed_h.state = self.detector.maybe_landed.state = self.detector.ground_contact.state = False
+
+    def _mission_changed(self) -> None:
+        if self.missions.version != self._mission_version:
+            self._mission_version = self.missions.version
+            self.mission_seq, self.reached = 0, -1
+            self.mission_state = M.MISSION_STATE_NOT_STARTED if self.missions.items else M.MISSION_STATE_NO_MISSION
+            self._out.append(self._mission_current())
+
+    def _start_mission(self, first: int | None) -> tuple[int, str | None]:
+        items = self.missions.items
+        if not items:
+            return DENIED, "Mission denied: no mission uploaded"
+        if self.home is None:
+            return TEMP_REJECTED, "Mission denied: no position yet"
+        for it in items:
+            if it.has_position() and (fence := navigator.outside_fence(it.local(self.home), self.params)):
+                return DENIED, f"Mission denied: item {it.seq} {fence}"[:50]
+        if first is not None:
+            self.mission_seq, self.reached = first, -1
+        elif self.mission_state == M.MISSION_STATE_COMPLETE:
+            self.mission_seq, self.reached = 0, -1
+        self._set_mode(MISSION)
+        if not self.armed:  # PX4: the mode can be chosen on the ground; the mission starts when armed
+            return ACCEPTED, None
+        legs = navigator.item_legs(items[self.mission_seq], self.mover.ref, self.home, self.params)
+        if self.landed:
+            alt = navigator.mission_takeoff_altitude(items, self.mission_seq, self.home, self.params)
+            if alt is not None:
+                legs = navigator.takeoff_legs(self.mover.ref, alt, tag=None) + legs
+        self.nav.start(legs)
+        self._item_started(items[self.mission_seq])
+        self.mission_state = M.MISSION_STATE_ACTIVE
+        self._out.append(self._mission_current())
+        return ACCEPTED, None
+
+    def _item_started(self, item) -> None:
+        if item.command == missions.NAV_WAYPOINT and math.isfinite(item.param4):
+            self.yaw = enu_yaw(math.radians(item.param4))
+
+    def _leave_mission(self) -> None:
+        if self.mission_state == M.MISSION_STATE_ACTIVE:
+            self.mission_state = M.MISSION_STATE_PAUSED
+            self._out.append(self._mission_current())
+
+    def _item_reached(self, seq: int) -> None:
+        """MISSION_ITEM_REACHED, then the next item, or the end (Hold, unless it ended on the ground)."""
+        items = self.missions.items
+        self.reached, self._reached_resends = seq, 0
+        self._out.append(self.mav.mission_item_reached_encode(seq))
+        if seq + 1 >= len(items):
+            self.mission_state = M.MISSION_STATE_COMPLETE
+            self._text("Mission finished")
+            if not self.landed:
+                self.nav.hold()
+                self._set_mode(HOLD)
+        elif not items[seq].autocontinue:  # wait here until told to go on (DO_SET_MODE MISSION)
+            self.mission_seq, self.mission_state = seq + 1, M.MISSION_STATE_PAUSED
+            self.nav.hold()
+            self._set_mode(HOLD)
+        else:
+            self.mission_seq = seq + 1
+            self.nav.start(navigator.item_legs(items[seq + 1], self.mover.ref, self.home, self.params), keep_speed=True)
+            self._item_started(items[seq + 1])
+        self._out.append(self._mission_current())
+
+    # --- the control step ----------------------------------------------------------------------------
+    def step(self, state, home: Home, now: float, thrust: float) -> list:
+        """One control step: the vehicle's state (12,) ENU/FLU relative to home, home, the time (s)
+        and the collective thrust fraction last commanded (setpoint.collective_thrust). Returns the
+        messages to send; `setpoint` is then the target for the policy."""
+        s = np.asarray(state, np.float64)
+        if s.shape != (12,) or not np.all(np.isfinite(s)):
+            raise BadVehicleState(f"vehicle state {s.tolist()}: expected 12 finite numbers (link.wire checks them)")
+        if not math.isfinite(thrust) or not math.isfinite(now):
+            raise BadVehicleState(f"thrust {thrust}, time {now}: expected finite numbers")
+        dt = 0.0 if self._last_step is None else max(0.0, now - self._last_step)
+        self._last_step, self.now, self.state, self.home = now, now, s, home
+        p = self.params
+        if not self.armed:
+            self.mover.reset(s[0:3])
+        limits = LandLimits(
+            p["MPC_THR_MIN"],
+            p["MPC_THR_HOVER"],
+            p["LNDMC_Z_VEL_MAX"],
+            p["LNDMC_XY_VEL_MAX"],
+            math.radians(p["LNDMC_ROT_MAX"]),
+            self.cfg.ground_alt_max_m,
+            self.cfg.land_trigger_s,
+        )
+        was = self.landed
+        self.landed = self.detector.update(
+            now, self.armed, float(s[2]), s[3:6], s[9:12], thrust if self.motors else 0.0, self.nav.landing, limits
+        )
+        if self.armed and was and not self.landed:
+            self.flown = True
+            self._text("Takeoff detected")
+        elif self.armed and self.landed and not was:
+            self.landed_at = now
+            self._text("Landing detected")
+        for tag in self.nav.update(now, dt, s[0:3], self.landed):
+            if tag == "takeoff":
+                self._set_mode(HOLD)
+            elif isinstance(tag, tuple) and tag[0] == "item":
+                self._item_reached(tag[1])
+        self._auto_disarm(now)
+        self._link_check(now)
+        self.motors = self.armed and not (self.landed and not self.nav.taking_off)
+        self.motors = self.motors and not (self.nav.landing and self.detector.contact)
+        self.missions.locked = self.armed and self.mode == MISSION and self.mission_state == M.MISSION_STATE_ACTIVE
+        replies, texts = self.missions.tick(now)
+        self._out += replies
+        for t in texts:
+            self._text(t, M.MAV_SEVERITY_WARNING)
+        for msg_id in self.streams.due(now):
+            msg = self._message(msg_id)
+            if msg is not None:
+                self._out.append(msg)
+            if msg_id == streams.MISSION_CURRENT and self.reached >= 0 and self._reached_resends < 10:
+                # PX4 repeats the last MISSION_ITEM_REACHED (mavlink_mission.cpp, up to 10 times)
+                self._reached_resends += 1
+                self._out.append(self.mav.mission_item_reached_encode(self.reached))
+        out, self._out = self._out, []
+        return out
+
+    def _auto_disarm(self, now: float) -> None:
+        if not self.armed or not self.landed or self.nav.taking_off:
+            return
+        p = self.params
+        if self.flown and p["COM_DISARM_LAND"] > 0 and now - self.landed_at >= p["COM_DISARM_LAND"]:
+            self._disarm()
+            self._text("Disarmed by landing")
+        elif not self.flown and p["COM_DISARM_PRFLT"] > 0 and now - self.armed_at >= p["COM_DISARM_PRFLT"]:
+            self._disarm()
+            self._text("Disarmed by auto preflight disarming")
+
+    def _link_alive(self, now: float) -> None:
+        self.last_gcs = now
+        if self.failsafe is not None:
+            if self.failsafe == "hold":
+                self.nav.freeze(False)  # resume what was being flown
+            self.failsafe = None
+            self._text("Ground station connection regained")
+            self._out.append(self.heartbeat())
+
+    def _link_check(self, now: float) -> None:
+        p = self.params
+        act = int(p["NAV_DLL_ACT"])
+        if self.failsafe is None:
+            flying = self.armed and not self.landed
+            if flying and act and self.last_gcs is not None and now - self.last_gcs > p["COM_DL_LOSS_T"]:
+                self.failsafe, self.failsafe_at = "hold", now
+                self.nav.freeze(True)
+                self._text("Connection to ground station lost", M.MAV_SEVERITY_CRITICAL)
+                self._out.append(self.heartbeat())
+            return
+        if self.failsafe == "hold" and now - self.failsafe_at >= p["COM_FAIL_ACT_T"]:
+            self.failsafe = "action"
+            self.nav.freeze(False)
+            self._leave_mission()
+            if act == NAV_DLL_RETURN and not self.landed:
+                self.nav.start(navigator.rtl_legs(self.mover.ref, p))
+                self._set_mode(RTL)
+            elif act == NAV_DLL_LAND:
+                self.nav.start(navigator.land_legs(self.mover.ref[0:2]))
+                self._set_mode(LAND)
+            else:  # NAV_DLL_HOLD (or Return once on the ground)
+                self.nav.hold()
+                self._set_mode(HOLD)
+            self._text(f"Failsafe activated: {MODE_NAMES[self.mode]}", M.MAV_SEVERITY_CRITICAL)
+        if not self.armed:
+            self.failsafe = None
+
+    _HANDLERS = {
+        "HEARTBEAT": "_on_heartbeat",
+        "PING": "_on_ping",
+        "COMMAND_LONG": "_on_command",
+        "COMMAND_INT": "_on_command",
+        "SET_MODE": "_on_set_mode",
+        "PARAM_REQUEST_LIST": "_on_params",
+        "PARAM_REQUEST_READ": "_on_params",
+        "PARAM_SET": "_on_params",
+        "MISSION_COUNT": "_on_mission",
+        "MISSION_ITEM_INT": "_on_mission",
+        "MISSION_ITEM": "_on_mission",
+        "MISSION_REQUEST_LIST": "_on_mission",
+        "MISSION_REQUEST_INT": "_on_mission",
+        "MISSION_REQUEST": "_on_mission",
+        "MISSION_ACK": "_on_mission",
+        "MISSION_CLEAR_ALL": "_on_mission",
+    }
+    """Message type → method; types not here are counted as dropped (`unexpected_<type>`)."""

@@ -1,0 +1,270 @@
+"""Flight tasks as legs for the `setpoint.Mover`: take off, go to, land, return, fly mission items.
+
+A leg moves the reference to a goal and is done when the vehicle has arrived (reference at the goal,
+the vehicle within NAV_ACC_RAD horizontally and NAV_MC_ALT_RAD vertically, or a mission item's own
+acceptance radius, for `dwell_s` or the item's hold time, as PX4's MissionBlock::
+is_mission_item_reached does in src/modules/navigator/mission_block.cpp), or, for a landing, when
+the land detector reports touchdown. Speeds are read from the parameters at every step, so a
+PARAM_SET in flight takes effect at once: MPC_XY_CRUISE horizontally (or a DO_CHANGE_SPEED /
+DO_REPOSITION speed), MPC_Z_V_AUTO_UP and MPC_Z_V_AUTO_DN vertically, MPC_TKO_SPEED while taking
+off, and the landing speed schedule of `setpoint.land_speed` while landing.
+
+`rtl_legs` follows PX4's Return mode (src/modules/navigator/rtl.cpp, `calculate_return_alt_from_
+cone_half_angle`, and the RTL_* parameter descriptions): climb at the current position to the return
+altitude (RTL_RETURN_ALT above home, lowered inside the RTL_CONE_ANG cone near home, never below
+RTL_DESCEND_ALT, never a descent), fly home at that altitude, descend to RTL_DESCEND_ALT, wait
+RTL_LAND_DELAY (−1: stay), land.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quadpilot.link.frames import Home
+
+from . import missions
+from .setpoint import Mover, land_speed
+
+LAND_DEPTH_M = 1000.0
+"""A landing moves the reference towards this far below home; the lead limit stops it below the
+vehicle once the vehicle stops on the ground."""
+
+
+@dataclass
+class Leg:
+    """One piece of a flight task. kind: "move", "takeoff" (as move, climbing at MPC_TKO_SPEED),
+    "land" (x, y of `goal` only), "wait" (`seconds`, hold the reference; < 0: for ever), "speed"
+    (DO_CHANGE_SPEED `speed` = (type, m/s), instantaneous). `tag` is returned when the leg is done."""
+
+    kind: str
+    goal: np.ndarray | None = None
+    seconds: float = 0.0
+    acceptance: float | None = None
+    speed: tuple[float, float] | None = None
+    tag: object = None
+
+
+class Navigator:
+    """Runs a list of legs on a Mover; `update` returns the tags of the legs finished this step."""
+
+    def __init__(self, mover: Mover, params, dwell_s: float) -> None:
+        self.mover, self.params, self.dwell_s = mover, params, dwell_s
+        self.legs: list[Leg] = []
+        self.leg: Leg | None = None
+        self.frozen = False
+        self.cruise: float | None = None
+        """Horizontal speed set by DO_CHANGE_SPEED or DO_REPOSITION, until the next task."""
+        self.climb: float | None = None
+        self.descent: float | None = None
+        self._active = False
+        self._inside_since: float | None = None
+        self._until = 0.0
+
+    def start(self, legs: list[Leg], keep_speed: bool = False) -> None:
+        """Fly `legs` from the reference's current position (no jump)."""
+        if not keep_speed:
+            self.cruise = self.climb = self.descent = None
+        self.legs = list(legs)
+        self._next()
+
+    def hold(self) -> None:
+        """No task: stop the reference where it is and hold it there."""
+        self.legs, self.leg = [], None
+        self.mover.stop()
+
+    @property
+    def busy(self) -> bool:
+        return self.leg is not None
+
+    @property
+    def landing(self) -> bool:
+        return self.leg is not None and self.leg.kind == "land"
+
+    @property
+    def taking_off(self) -> bool:
+        return self.leg is not None and self.leg.kind == "takeoff"
+
+    def freeze(self, frozen: bool) -> None:
+        """Frozen: hold the reference and make no progress (the failsafe's hold delay)."""
+        if frozen and not self.frozen:
+            self.mover.stop()
+        if not frozen and self.frozen:
+            self._active = False  # resume: aim at the leg's goal again
+        self.frozen = frozen
+
+    def apply_speed(self, speed_type: float, value: float) -> None:
+        """DO_CHANGE_SPEED: type 0 airspeed or 1 ground speed (horizontal), 2 climb, 3 descent;
+        −1 keeps, −2 restores the parameter's value."""
+        if value == -1.0:
+            return
+        v = None if value == -2.0 else min(float(value), self.params["MPC_XY_VEL_MAX"])
+        if speed_type in (0, 1):
+            self.cruise = v
+        elif speed_type == 2:
+            self.climb = v
+        elif speed_type == 3:
+            self.descent = v
+
+    def _speeds(self, kind: str, altitude: float) -> tuple[float, float, float]:
+        p = self.params
+        xy = self.cruise or p["MPC_XY_CRUISE"]
+        up = p["MPC_TKO_SPEED"] if kind == "takeoff" else (self.climb or p["MPC_Z_V_AUTO_UP"])
+        down = self.descent or p["MPC_Z_V_AUTO_DN"]
+        if kind == "land":
+            down = land_speed(altitude, down, p["MPC_LAND_SPEED"], p["MPC_LAND_ALT1"], p["MPC_LAND_ALT2"])
+        return xy, up, down
+
+    def _next(self) -> None:
+        self.leg = self.legs.pop(0) if self.legs else None
+        self._active = False
+        self._inside_since = None
+
+    def _activate(self, now: float, altitude: float) -> None:
+        leg = self.leg
+        if leg.kind == "wait":
+            self.mover.stop()
+            self._until = now + leg.seconds
+        elif leg.kind == "land":
+            goal = np.array([leg.goal[0], leg.goal[1], -LAND_DEPTH_M])
+            self.mover.set_goal(goal, *self._speeds("land", altitude))
+        else:
+            self.mover.set_goal(leg.goal, *self._speeds(leg.kind, altitude))
+        self._active = True
+
+    def _arrived(self, now: float, pos: np.ndarray, landed: bool) -> bool:
+        leg = self.leg
+        if leg.kind == "land":
+            return landed
+        if leg.kind == "wait":
+            return leg.seconds >= 0 and now >= self._until
+        p = self.params
+        radius = leg.acceptance if leg.acceptance and leg.acceptance > 0 else p["NAV_ACC_RAD"]
+        inside = (
+            self.mover.at_goal
+            and math.hypot(pos[0] - leg.goal[0], pos[1] - leg.goal[1]) <= radius
+            and abs(pos[2] - leg.goal[2]) <= p["NAV_MC_ALT_RAD"]
+        )
+        if not inside:
+            self._inside_since = None
+            return False
+        if self._inside_since is None:
+            self._inside_since = now
+        return now - self._inside_since >= max(self.dwell_s, leg.seconds)
+
+    def update(self, now: float, dt: float, pos, landed: bool) -> list:
+        pos = np.asarray(pos, np.float64)
+        done = []
+        while self.leg is not None and not self.frozen:
+            if self.leg.kind == "speed":
+                self.apply_speed(*self.leg.speed)
+                done.append(self.leg.tag)
+                self._next()
+                continue
+            if not self._active:
+                self._activate(now, float(pos[2]))
+            if not self._arrived(now, pos, landed):
+                break
+            done.append(self.leg.tag)
+            self._next()
+        if self.leg is not None and self.leg.kind == "land" and not self.frozen:
+            self.mover.speed_down = self._speeds("land", float(pos[2]))[2]
+        self.mover.update(dt, pos)
+        return done
+
+
+# --- tasks -------------------------------------------------------------------------------------
+
+
+def takeoff_legs(ref, altitude: float, tag="takeoff") -> list[Leg]:
+    """Climb at the reference's horizontal position to `altitude` m above home (never down)."""
+    goal = np.array([ref[0], ref[1], max(float(altitude), float(ref[2]))])
+    return [Leg("takeoff", goal, tag=tag)]
+
+
+def land_legs(xy, tag="land") -> list[Leg]:
+    return [Leg("land", np.array([xy[0], xy[1], 0.0]), tag=tag)]
+
+
+def rtl_altitude(pos, params) -> float:
+    """Return altitude above home (m) from the current position (home at the origin)."""
+    dist = math.hypot(pos[0], pos[1])
+    ret, desc, cone = params["RTL_RETURN_ALT"], params["RTL_DESCEND_ALT"], params["RTL_CONE_ANG"]
+    alt = float(pos[2])
+    if dist <= params["RTL_MIN_DIST"]:
+        target = desc
+    elif alt > ret or cone >= 90:
+        target = alt
+    elif cone <= 0:
+        target = ret
+    else:
+        needed = dist / math.tan(math.radians(min(max(cone, 1.0), 89.0)))
+        target = max(alt, min(max(needed, 0.0), ret))
+    return max(target, desc)
+
+
+def rtl_legs(ref, params, tag="rtl") -> list[Leg]:
+    ref = np.asarray(ref, np.float64)
+    alt = max(rtl_altitude(ref, params), float(ref[2]))  # climb first; never descend before returning
+    desc = min(params["RTL_DESCEND_ALT"], alt)
+    legs = [
+        Leg("move", np.array([ref[0], ref[1], alt])),
+        Leg("move", np.array([0.0, 0.0, alt])),
+        Leg("move", np.array([0.0, 0.0, desc])),
+    ]
+    delay = params["RTL_LAND_DELAY"]
+    if delay != 0:
+        legs.append(Leg("wait", seconds=delay))
+    legs += land_legs((0.0, 0.0), tag=tag)
+    return legs
+
+
+def item_legs(item: missions.MissionItem, ref, home: Home, params) -> list[Leg]:
+    """The legs of one mission item; the last one carries the tag ("item", seq)."""
+    tag = ("item", item.seq)
+    ref = np.asarray(ref, np.float64)
+    cmd = item.command
+    if cmd == missions.NAV_WAYPOINT:
+        hold = item.param1 if math.isfinite(item.param1) and item.param1 > 0 else 0.0
+        radius = item.param2 if math.isfinite(item.param2) and item.param2 > 0 else None
+        return [Leg("move", item.local(home), seconds=hold, acceptance=radius, tag=tag)]
+    if cmd == missions.NAV_TAKEOFF:
+        return takeoff_legs(ref, item.local(home)[2], tag=tag)
+    if cmd == missions.NAV_LAND:
+        if not item.has_position():
+            return land_legs(ref, tag=tag)
+        p = item.local(home)
+        return [Leg("move", np.array([p[0], p[1], ref[2]])), *land_legs(p, tag=tag)]
+    if cmd == missions.NAV_RETURN_TO_LAUNCH:
+        return rtl_legs(ref, params, tag=tag)
+    if cmd == missions.NAV_DELAY:
+        return [Leg("wait", seconds=float(item.param1), tag=tag)]
+    if cmd == missions.DO_CHANGE_SPEED:
+        return [Leg("speed", speed=(item.param1, item.param2), tag=tag)]
+    raise ValueError(f"mission item {item.seq}: command {cmd} has no legs")
+
+
+def mission_takeoff_altitude(items: list[missions.MissionItem], start: int, home: Home, params) -> float | None:
+    """Altitude above home a mission started on the ground first takes off to, or None when its
+    first item is itself a take-off: MIS_TAKEOFF_ALT, or the first waypoint's altitude if higher
+    (PX4 src/modules/navigator/mission.cpp: a mission started landed takes off first)."""
+    first = items[start]
+    if first.command == missions.NAV_TAKEOFF:
+        return None
+    alt = params["MIS_TAKEOFF_ALT"]
+    if first.command == missions.NAV_WAYPOINT:
+        alt = max(alt, float(first.local(home)[2]))
+    return alt
+
+
+def outside_fence(goal, params) -> str | None:
+    """Why `goal` (ENU from home) breaks GF_MAX_HOR_DIST / GF_MAX_VER_DIST (0: no limit), or None."""
+    hor, ver = params["GF_MAX_HOR_DIST"], params["GF_MAX_VER_DIST"]
+    d = math.hypot(goal[0], goal[1])
+    if hor > 0 and d > hor:
+        return f"{d:.1f} m from home, geofence {hor:g} m"
+    if ver > 0 and goal[2] > ver:
+        return f"{goal[2]:.1f} m above home, geofence {ver:g} m"
+    return None
