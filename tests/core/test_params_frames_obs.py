@@ -34,7 +34,7 @@ def test_seed_vehicle_matches_the_seed_table():
 def test_get_preset():
     assert get_preset("seed") is SEED_VEHICLE
     assert get_preset("crazyflie") is CRAZYFLIE
-    assert set(PRESETS) == {"seed", "crazyflie"}
+    assert set(PRESETS) == {"seed", "crazyflie", "px4_sih_quadx"}
     with pytest.raises(ValueError, match="nope") as err:
         get_preset("nope")
     for name in PRESETS:

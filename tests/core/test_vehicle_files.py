@@ -1,6 +1,7 @@
 """Vehicle files (core.vehicle_file): the shipped presets read back to today's presets field by
-field, every bad file is refused with one line naming the file and the key, the quad-X layout check,
-and the writer/reader round trip."""
+field, every bad file is refused with one line naming the file and the key, any flyable rotor layout
+and output order is taken as written (and an unflyable one refused), and the writer/reader round
+trip."""
 
 import dataclasses
 import math
@@ -8,10 +9,8 @@ import re
 
 import pytest
 
-from quadpilot.core import dynamics
-from quadpilot.core.params import PRESETS, VehicleParams
+from quadpilot.core.params import PRESETS, Rotor, VehicleParams, quad_x
 from quadpilot.core.vehicle_file import (
-    QUAD_X,
     VEHICLES_DIR,
     UnknownVehicleError,
     VehicleFileError,
@@ -82,10 +81,66 @@ def test_a_user_file_maps_onto_vehicle_params():
     assert (v.omega_max, v.motor_tau, v.drag, v.gravity) == (2400.0, 0.02, 0.1, 9.81)
 
 
-def test_the_accepted_layout_is_the_one_the_dynamics_model():
-    """The file's order and spins are `core.dynamics.MOTOR_LAYOUT` (FLU there, FRD in the file)."""
-    for (sx, sy, spin), (x, y, s) in zip(QUAD_X, dynamics.MOTOR_LAYOUT.values(), strict=True):
-        assert (sx, sy, spin) == (x, -y, "ccw" if s > 0 else "cw")
+def test_the_presets_are_px4_quad_x_in_px4_output_order():
+    """Each preset's rotors are PX4's quad-X (`core.params.quad_x`, airframe 4001_quad_x: output 1
+    front-right CCW, 2 rear-left CCW, 3 front-left CW, 4 rear-right CW; FRD, y right)."""
+    for name in ("seed", "crazyflie"):
+        assert PRESETS[name].rotors == list(quad_x(PRESETS[name].arm))
+    signs = [(math.copysign(1, r.x), math.copysign(1, r.y), r.spin) for r in PRESETS["px4_sih_quadx"].rotors]
+    assert signs == [(1, 1, "ccw"), (-1, -1, "ccw"), (1, -1, "cw"), (-1, 1, "cw")]
+
+
+# rotor blocks of a "+" frame numbered clockwise from the front: (x, y, spin) in FRD
+PLUS = ((0.15, 0.0, "ccw"), (0.0, 0.15, "cw"), (-0.15, 0.0, "ccw"), (0.0, -0.15, "cw"))
+
+
+def _with_rotors(rotors) -> str:
+    head = HEAVY.strip().split("[[rotor]]")[0]
+    blocks = [f'[[rotor]]\nx = {x}\ny = {y}\nspin = "{s}"\n' for x, y, s in rotors]
+    return head + "\n".join(blocks)
+
+
+@pytest.mark.parametrize(
+    "rotors",
+    [
+        PLUS,
+        # PX4's quad-X with its outputs permuted (3, 1, 4, 2)
+        ((0.1, -0.1, "cw"), (0.1, 0.1, "ccw"), (-0.1, 0.1, "cw"), (-0.1, -0.1, "ccw")),
+        # RotorPy's hummingbird numbering, and a non-square frame (wider than long)
+        ((0.08, -0.12, "cw"), (0.08, 0.12, "ccw"), (-0.08, 0.12, "cw"), (-0.08, -0.12, "ccw")),
+    ],
+    ids=["plus", "permuted-quad-x", "wide-x"],
+)
+def test_any_flyable_layout_is_taken_as_written(rotors):
+    v = parse_vehicle(_with_rotors(rotors).encode(), "frame.toml")
+    assert v.rotors == [Rotor(x, y, s) for x, y, s in rotors]
+    assert v.arm == pytest.approx(sum(math.hypot(x, y) for x, y, _ in rotors) / 4, rel=1e-12)
+
+
+def test_an_idle_speed_is_taken():
+    v = parse_vehicle(_variant(omega_min="150.0").encode(), "idle.toml")
+    assert v.omega_min == 150.0
+
+
+def test_the_shipped_px4_sih_file_holds_px4_and_rotorpy_numbers():
+    """PX4 SIH parameters (sih_params.c defaults) and RotorPy 3.0.0's px4_sihsim_quadx_params, the
+    simulator a policy for it flies against."""
+    from rotorpy.vehicles.px4_sihsim_quadx_params import quad_params as rp
+
+    v = resolve_vehicle("px4_sih_quadx")
+    assert (v.mass, v.ixx, v.iyy, v.izz) == (1.0, 0.025, 0.025, 0.03)  # SIH_MASS, SIH_IXX/IYY/IZZ
+    assert (v.mass, v.ixx, v.iyy, v.izz) == (rp["mass"], rp["Ixx"], rp["Iyy"], rp["Izz"])
+    assert v.max_thrust == pytest.approx(5.0, rel=1e-12)  # SIH_T_MAX, N
+    assert v.k_m * v.max_thrust == pytest.approx(0.1, rel=1e-12)  # SIH_Q_MAX, N m
+    assert v.motor_tau == 0.05 == rp["tau_m"]  # SIH_T_TAU
+    assert (v.k_f, v.k_m * v.k_f, v.omega_max, v.omega_min) == pytest.approx(
+        (rp["k_eta"], rp["k_m"], rp["rotor_speed_max"], rp["rotor_speed_min"]), rel=1e-12
+    )
+    for r, key, direction in zip(v.rotors, ("r1", "r2", "r3", "r4"), rp["rotor_directions"], strict=True):
+        x, y_flu, _ = rp["rotor_pos"][key]
+        assert (r.x, -r.y) == pytest.approx((x, y_flu), abs=1e-15)
+        # RotorPy: +1 is a CW rotor (its yaw moment on the body is +z), −1 a CCW one
+        assert r.spin == ("cw" if direction > 0 else "ccw")
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
@@ -115,26 +170,37 @@ BAD = {
     "infinite inertia": (_variant(izz="inf"), "izz", "finite"),
     "nan thrust": (_variant(k_thrust="nan"), "k_thrust", "finite"),
     "negative lag": (_variant(motor_tau="-0.1"), "motor_tau", ">= 0"),
-    "idle speed": (_variant(omega_min="100.0"), "omega_min", "only 0"),
+    "negative idle speed": (_variant(omega_min="-1.0"), "omega_min", ">= 0"),
+    "idle speed at full speed": (_variant(omega_min="2400.0"), "omega_min", "below omega_max"),
     "anisotropic drag": (_variant(drag="[0.1, 0.2, 0.1]"), "drag", "equal"),
     "drag of two": (_variant(drag="[0.1, 0.1]"), "drag", "three"),
     "unknown key": (_variant(arm="0.1"), "arm", "unknown key"),
     "bad name": (_variant(name='"two words"'), "name", "letters"),
     "name a number": (_variant(name="3"), "name", "letters"),
     "no rotor": (_variant().split("[[rotor]]")[0], "rotor", "missing"),
-    "three rotors": ("[[rotor]]".join(_variant().split("[[rotor]]")[:4]), "rotor", "quad-X"),
+    "three rotors": ("[[rotor]]".join(_variant().split("[[rotor]]")[:4]), "rotor", "3 rotor table(s); expected 4"),
+    "six rotors": (_with_rotors(PLUS + PLUS[:2]), "rotor", "6 rotor table(s); expected 4"),
     "rotor a number": (_variant().split("[[rotor]]")[0] + "rotor = 4\n", "rotor", "[[rotor]] tables"),
     "rotor unknown key": (_variant().replace('spin = "cw"', 'spin = "cw"\nz = 0.0', 1), "rotor[3].z", "unknown"),
     "rotor without spin": (_variant().replace('spin = "cw"\n', "", 1), "rotor[3].spin", "missing"),
     "rotor bad spin": (_variant().replace('"cw"', '"clockwise"', 1), "rotor[3].spin", '"cw" or "ccw"'),
     "rotor x a string": (_variant().replace("x = 0.1", 'x = "front"', 1), "rotor[1].x", "expected a number"),
-    "swapped spins": (
-        _variant().replace('"ccw"', '"xx"').replace('"cw"', '"ccw"').replace('"xx"', '"cw"'),
-        "rotor[1]",
-        "quad-X",
+    "rotors on one line": (
+        _with_rotors(((0.2, 0.0, "ccw"), (0.1, 0.0, "cw"), (-0.1, 0.0, "ccw"), (-0.2, 0.0, "cw"))),
+        "rotor",
+        "cannot make thrust, roll, pitch and yaw",
     ),
-    "other output order": (_variant().replace("x = 0.1\ny = 0.1", "x = 0.1\ny = -0.2", 1), "rotor[1]", "quad-X"),
-    "not a square": (_variant().replace("x = -0.1\ny = -0.1", "x = -0.12\ny = -0.1", 1), "rotor[2]", "quad-X"),
+    "every rotor ccw": (
+        _with_rotors(((0.1, 0.1, "ccw"), (-0.1, -0.1, "ccw"), (0.1, -0.1, "ccw"), (-0.1, 0.1, "ccw"))),
+        "rotor",
+        "cannot make thrust, roll, pitch and yaw",
+    ),
+    "centre of mass behind the rotors": (
+        _with_rotors(((0.3, 0.1, "ccw"), (0.1, -0.1, "ccw"), (0.3, -0.1, "cw"), (0.1, 0.1, "cw"))),
+        "rotor",
+        "negative thrust",
+    ),
+    "every rotor at the centre": (_with_rotors(((0.0, 0.0, "ccw"),) * 2 + ((0.0, 0.0, "cw"),) * 2), "rotor", "centre"),
 }
 
 
@@ -149,12 +215,6 @@ def test_a_bad_file_is_refused_with_one_line_naming_file_and_key(case, tmp_path)
     assert "\n" not in msg and msg.startswith(f"{path}: {key}: "), msg
     assert reason in msg, msg
     assert isinstance(e.value, ValueError) and e.value.key == key
-
-
-def test_the_layout_refusal_says_which_layout_is_supported(tmp_path):
-    text, _, _ = BAD["swapped spins"]
-    with pytest.raises(VehicleFileError, match=r"supported: quad-X only, 4 rotors .* PX4 output order"):
-        parse_vehicle(text.encode(), "x.toml")
 
 
 def test_an_unknown_name_is_not_a_file_error():

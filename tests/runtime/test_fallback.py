@@ -8,14 +8,17 @@ error over the last 2 s of a 5 s flight ≤ 5 cm.
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from quadpilot.core.dynamics import IDX, hover_command, step
 from quadpilot.core.frames import euler_to_rotmat
+from quadpilot.core.mission import judge
 from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT, build_observation
-from quadpilot.core.params import CRAZYFLIE, SEED_VEHICLE, ParamBatch
+from quadpilot.core.params import CRAZYFLIE, PX4_SIH_QUADX, SEED_VEHICLE, ParamBatch, Rotor
+from quadpilot.core.vehicle_file import load_vehicle_file
 from quadpilot.runtime.fallback import FallbackController, FallbackGains, allocation_matrix
 
 PRESETS = [SEED_VEHICLE, CRAZYFLIE]
@@ -52,7 +55,7 @@ def fly(ctrl, vehicle, s0, seconds, push=None, target_vel=None):
     acceleration over those steps (the same constant-acceleration update the model uses).
     target_vel (3,): the target moves at this velocity from TARGET and the track layout is used."""
     params = ParamBatch.from_preset(vehicle, 1)
-    s, rotor = s0[None].copy(), np.zeros((1, 4))
+    s, rotor = s0[None].copy(), np.asarray(vehicle.hover_commands, np.float64)[None].copy()
     states, cmds = [s[0]], []
     for k in range(round(seconds / DT)):
         if target_vel is None:
@@ -131,6 +134,57 @@ def test_gains_scale_with_mass_and_inertia():
     seed, cf = FallbackGains.for_vehicle(SEED_VEHICLE), FallbackGains.for_vehicle(CRAZYFLIE)
     assert math.sqrt(seed.att_p[2] / SEED_VEHICLE.izz) < 0.5 * math.sqrt(seed.att_p[0] / SEED_VEHICLE.ixx)
     assert math.sqrt(cf.att_p[2] / CRAZYFLIE.izz) == pytest.approx(20.0)  # capped by sampling
+
+
+# --- any rotor layout and output order ------------------------------------------------------
+
+
+def _frame(name, rotors):
+    return dataclasses.replace(SEED_VEHICLE, name=name, arm=None, rotors=[Rotor(*r) for r in rotors])
+
+
+# rotors in body FRD, output order (core.vehicle_file); none of them PX4's quad-X in PX4's order
+LAYOUTS = {
+    "plus": _frame("plus", [(0.105, 0.0, "ccw"), (0.0, 0.105, "cw"), (-0.105, 0.0, "ccw"), (0.0, -0.105, "cw")]),
+    "permuted-quad-x": _frame(
+        "permuted",
+        [(0.0742, -0.0742, "cw"), (0.0742, 0.0742, "ccw"), (-0.0742, 0.0742, "cw"), (-0.0742, -0.0742, "ccw")],
+    ),
+    "offset-centre-of-mass": _frame(
+        "offset", [(0.08, 0.12, "ccw"), (-0.12, -0.12, "ccw"), (0.08, -0.12, "cw"), (-0.12, 0.12, "cw")]
+    ),
+    "rotorpy-hummingbird": load_vehicle_file(Path(__file__).parents[1] / "data/vehicles/rotorpy_hummingbird.toml"),
+    "px4-sih-quadx": PX4_SIH_QUADX,
+}
+
+
+@pytest.mark.parametrize("name", sorted(LAYOUTS))
+def test_the_mixer_inverts_the_vehicles_own_layout(name):
+    """The controller's allocation is the model's torque for this layout (one step from rest gives
+    h·τ/I), and at the target it commands the per-rotor trim that holds the vehicle still."""
+    vehicle = LAYOUTS[name]
+    test_allocation_matrix_is_the_models_torque(vehicle)
+    ctrl = FallbackController(vehicle)
+    u = ctrl.act(build_observation(at_target(0.3)[None], TARGET)[0])
+    np.testing.assert_allclose(u, vehicle.hover_commands, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", sorted(LAYOUTS))
+def test_flies_back_from_the_hover_bar_starts_on_any_layout(name):
+    """A quad-X mixer on these frames would send roll commands to the wrong rotors and tumble; the
+    vehicle's own mixer flies them back to the target and holds the heading it found."""
+    vehicle = LAYOUTS[name]
+    ctrl = FallbackController(vehicle)
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        ctrl.reset()
+        s0 = random_start(rng)
+        states, _ = fly(ctrl, vehicle, s0, 5.0)
+        err = pos_error(states)
+        assert err[-200:].mean() <= TOL, f"mean error over the last 2 s {err[-200:].mean():.3f} m"
+        assert np.all(tilt_deg(states) < 60.0) and np.all(states[:, 2] > 0.0)
+        out = judge("hover", states, TARGET, DT)
+        assert out["success"], out
 
 
 # --- closed-loop flights ------------------------------------------------------------------

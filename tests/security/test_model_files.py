@@ -599,7 +599,7 @@ BAD_VALUES = {
     "inertia-array": (_vehicle(ixx=[0.0023, 0.0023]), r"ixx: expected one number, found a sequence of 2"),
     "mass-as-text": (_vehicle(mass="0.665"), r"mass: expected one number, found str"),
     "mass-beyond-float": (_vehicle(mass=10**400), r"mass = inf: expected a finite number > 0"),
-    "unknown-vehicle-field": (_vehicle(rotors=6), r"does not describe a VehicleParams"),
+    "unknown-vehicle-field": (_vehicle(propellers=6), r"does not describe a VehicleParams"),
     "vehicle-not-the-u_hover-one": (_vehicle(mass=0.7), r"hovers at command .* u_hover"),
     "tilt-90": (_envelope(max_tilt_deg=90.0), r"envelope: expected"),
     "distance-infinite": (_raw("quadpilot.envelope", '{"max_distance_m": 1e999, "max_tilt_deg": 60}'), "envelope"),

@@ -2,6 +2,7 @@
 directory, a device, deep nesting, huge numbers) is refused with one line naming the file, and the
 console scripts turn it into one line on stderr and exit code 1 (an unknown name: exit code 2)."""
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -89,3 +90,67 @@ def test_console_scripts_refuse_a_bad_file_with_exit_1_and_an_unknown_name_with_
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "hexacopter" in err[0] and "shipped vehicle" in err[0], err
     assert not (tmp_path / "run").exists()
+
+
+# --- rotor lists: files and metadata ------------------------------------------------------------
+
+_HEAD = (VEHICLES_DIR / "seed.toml").read_text(encoding="utf-8").split("[[rotor]]")[0]
+
+
+def test_thousands_of_rotor_tables_are_refused_by_count(tmp_path):
+    p = tmp_path / "v.toml"
+    p.write_text(_HEAD + '[[rotor]]\nx = 0.1\ny = 0.1\nspin = "cw"\n' * 1500, encoding="utf-8")
+    _refused(p, "rotor: 1500 rotor table(s); expected 4")
+
+
+@settings(derandomize=True, database=None, max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(allow_nan=False, allow_infinity=False, width=64),
+            st.floats(allow_nan=False, allow_infinity=False, width=64),
+            st.sampled_from(["cw", "ccw"]),
+        ),
+        min_size=4,
+        max_size=4,
+    )
+)
+def test_any_rotor_positions_give_a_vehicle_or_one_line(rotors):
+    """Positions from 1e-308 to 1e308, on a line, all in one place: a flyable vehicle or one line
+    naming the rotor key, never another exception (an overflow, a singular matrix)."""
+    text = _HEAD + "".join(f'[[rotor]]\nx = {x!r}\ny = {y!r}\nspin = "{s}"\n' for x, y, s in rotors)
+    try:
+        v = parse_vehicle(text.encode(), "fuzz.toml")
+    except VehicleFileError as e:
+        assert "\n" not in str(e) and str(e).startswith("fuzz.toml: rotor"), str(e)
+    else:
+        assert np.all(np.isfinite(v.hover_commands)) and np.all(v.hover_thrusts > 0)
+
+
+@pytest.mark.parametrize(
+    "rotors",
+    [
+        "rotors",
+        {"x": 0.1},
+        [[0.1, 0.1, "cw"]] * 4,
+        [{"x": 0.1, "y": 0.1, "spin": "cw", "z": 1}] * 4,
+        [{"x": [0.1] * 1000, "y": 0.1, "spin": "cw"}] * 4,
+        [{"x": 0.1, "y": 0.1, "spin": "clockwise" * 1000}] * 4,
+        [{"x": 1e308, "y": 1e308, "spin": "cw"}] * 4,
+        [{"x": True, "y": 0.1, "spin": "cw"}] * 4,
+        list(range(10**6)),
+    ],
+    ids=["string", "table", "lists", "extra-key", "x-a-list", "long-spin", "overflow", "boolean", "a-million"],
+)
+def test_hostile_rotor_metadata_is_one_line(rotors):
+    """What checkpoint or ONNX metadata could hold in place of a rotor list (VehicleParams(**json)):
+    a ValueError of one short line."""
+    import dataclasses
+
+    from quadpilot.core.params import SEED_VEHICLE, VehicleParams
+
+    d = {**dataclasses.asdict(SEED_VEHICLE), "rotors": rotors}
+    with pytest.raises(ValueError) as e:
+        VehicleParams(**d)
+    msg = str(e.value)
+    assert "\n" not in msg and "rotors" in msg and len(msg) < 300, msg

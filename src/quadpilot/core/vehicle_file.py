@@ -11,7 +11,7 @@ works the same way. The schema takes the numbers as RotorPy's and PX4's paramete
     k_thrust = 5.0e-6          # N/(rad/s)^2, rotor thrust = k_thrust * omega^2
     k_torque = 1.0e-7          # N m/(rad/s)^2, rotor reaction torque = k_torque * omega^2
     omega_max = 1000.0         # rad/s at actuator command 1.0 (omega = command * omega_max)
-    omega_min = 0.0            # rad/s, optional; only 0 (the model has no idle speed)
+    omega_min = 0.0            # rad/s, optional: idle speed of an armed motor (see below)
     motor_tau = 0.05           # s, first-order rotor lag, optional (0 = none)
     drag = 0.0                 # N s/m, optional: linear drag, see below
     [[rotor]]                  # one table per rotor, in actuator output order (output 1 first)
@@ -20,13 +20,31 @@ works the same way. The schema takes the numbers as RotorPy's and PX4's paramete
     spin = "ccw"               # seen from above
 
 Mapping onto `VehicleParams`: k_f = k_thrust; k_m = k_torque / k_thrust (m, yaw torque per newton
-of thrust); arm = the rotors' distance from the centre of mass. `core.dynamics` models a symmetric
-quad-X, so the file must describe exactly that: four rotors at (±a/√2, ±a/√2) in PX4's quad-X
-output order and spins (PX4 airframe "Quadrotor x": output 1 front-right CCW, 2 rear-left CCW,
-3 front-left CW, 4 rear-right CW); any other layout is refused, naming the supported one.
-Drag is linear and isotropic, F = drag · (v_wind − v) in N with v in m/s (world frame, the same in
-every frame because it is isotropic): a scalar or three equal values [dx, dy, dz]. RotorPy's
-`c_Dx, c_Dy, c_Dz` are quadratic parasitic-drag coefficients, a different law: do not paste them.
+of thrust); the rotor tables become `VehicleParams.rotors` as they are (positions in FRD, in output
+order; `core.params.flu_layout` is the one place they turn into the dynamics' FLU frame); arm = the
+rotors' mean distance from the centre of mass. Any layout and any output order: four rotors
+anywhere around the centre of mass, numbered as the vehicle's outputs are. PX4's quad-X numbers
+them 1 front-right CCW, 2 rear-left CCW, 3 front-left CW, 4 rear-right CW; RotorPy's hummingbird
+1 front-left CW, 2 front-right CCW, 3 rear-right CW, 4 rear-left CCW; a file says which. Refused,
+naming `rotor`: a count other than four (the policy's action and the actuator outputs carry four),
+a layout that cannot make roll, pitch and yaw torque independently (rotors on one line, spins that
+cannot balance), or one whose hover needs a negative thrust (the centre of mass outside the rotors).
+
+Rotor speed: omega = command * omega_max, clipped to [omega_min, omega_max] as RotorPy 3.0.0 clips it
+(rotorpy/vehicles/multirotor.py, `Multirotor.step`, rotor_speed_min/rotor_speed_max). With
+omega_min > 0 an armed motor idles at omega_min even at command 0; motors off (disarmed) stop the
+rotors (`core.dynamics`, module docstring). omega_min must be below omega_max.
+
+Drag: the model's is linear and isotropic, F = drag · (v_wind − v) in N with v in m/s (world frame,
+the same in every frame because it is isotropic): a scalar or three equal values [dx, dy, dz]. PX4's
+SIH uses this law (SIH_KDV, N/(m/s), `D = -KDV*V`; default 1.0). RotorPy's `c_Dx, c_Dy, c_Dz` are
+quadratic parasitic-drag coefficients in the body frame, N/(m/s)^2, F_i = −c_Di·|v|·v_i
+(rotorpy/vehicles/multirotor.py, `compute_body_wrench`), a different law: do not paste them as they
+are. The linear coefficient that gives the same force at a speed v_ref is c_D·v_ref (N s/m); a file
+that maps RotorPy's says which v_ref it took. Neither law is exact for the other away from v_ref
+(the linear one over-damps below it and under-damps above it); near hover both forces are
+negligible beside the thrust. RotorPy's rotor drag (k_d, k_z), translational lift (k_h) and blade
+flapping (k_flap) have no counterpart here.
 
 k_m and arm are derived, and rounded to 12 significant digits: a file written from the decimal
 values of a `VehicleParams` (`vehicle_to_toml`) then reads back to the same floats, bit for bit.
@@ -46,7 +64,7 @@ try:  # stdlib from Python 3.11; the `tomli` backport (same API) on 3.10
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-from .params import GRAVITY, VehicleParams
+from .params import GRAVITY, NUM_MOTORS, Rotor, VehicleParams, VehicleParamsError
 
 VEHICLES_DIR = Path(__file__).resolve().parent.parent / "vehicles"
 """The shipped vehicle files (package data, `quadpilot/vehicles/*.toml`)."""
@@ -60,14 +78,8 @@ _REQUIRED = ("name", "mass", "ixx", "iyy", "izz", "k_thrust", "k_torque", "omega
 _OPTIONAL = ("omega_min", "motor_tau", "drag")
 _ROTOR_KEYS = ("x", "y", "spin")
 
-# PX4's quad-X output order (ROMFS airframe "Quadrotor x", the order of `core.dynamics.MOTOR_LAYOUT`):
-# signs of (x forward, y right) in body FRD, and spin seen from above.
-QUAD_X = ((+1, +1, "ccw"), (-1, -1, "ccw"), (+1, -1, "cw"), (-1, +1, "cw"))
-SUPPORTED_LAYOUTS = (
-    "supported: quad-X only, 4 rotors at (±a/√2, ±a/√2) in PX4 output order "
-    "1 front-right ccw, 2 rear-left ccw, 3 front-left cw, 4 rear-right cw (x forward, y right)"
-)
-_LAYOUT_RTOL = 1e-6  # relative: pasted positions of a symmetric frame agree to all their digits
+_FIELD_KEY = {"k_f": "k_thrust", "k_m": "k_torque", "arm": "rotor", "rotors": "rotor"}
+"""VehicleParams field → the file key that gives it (the others are spelt alike)."""
 
 
 class VehicleFileError(ValueError):
@@ -160,18 +172,15 @@ def _from_table(doc: dict, path) -> VehicleParams:
     k_thrust, k_torque = number("k_thrust", "> 0"), number("k_torque", "> 0")
     omega_max = number("omega_max", "> 0")
     omega_min = number("omega_min", ">= 0", 0.0)
-    if omega_min != 0.0:
-        raise VehicleFileError(
-            path, "omega_min", f"= {omega_min!r}: only 0 is supported (the model has no idle rotor speed)"
-        )
     motor_tau = number("motor_tau", ">= 0", 0.0)
     drag = _drag(doc.get("drag", 0.0), path)
-    arm = _quad_x_arm(doc["rotor"], path)
+    rotors = _rotors(doc["rotor"], path)
+    arm = _round12(sum(math.hypot(r.x, r.y) for r in rotors) / len(rotors))
     try:
         return VehicleParams(
             name=name,
             mass=mass,
-            arm=arm,
+            arm=arm if arm > 0 else None,  # all rotors at the centre: VehicleParams names it
             ixx=ixx,
             iyy=iyy,
             izz=izz,
@@ -180,9 +189,17 @@ def _from_table(doc: dict, path) -> VehicleParams:
             omega_max=omega_max,
             motor_tau=motor_tau,
             drag=drag,
+            omega_min=omega_min,
+            rotors=rotors,
         )
-    except ValueError as e:  # a derived value out of range, e.g. k_torque / k_thrust overflowing
-        raise VehicleFileError(path, None, str(e)) from None
+    except VehicleParamsError as e:  # the layout, omega_min ≥ omega_max, a derived value out of range
+        # VehicleParams says "vehicle 'name': field...: reason"; the file's message names the file's key
+        reason = str(e).split(": ", 1)[1] if str(e).startswith("vehicle ") else str(e)
+        if e.field == "k_m":  # derived: say from what
+            reason = f"k_torque / k_thrust: {reason}"
+        elif reason.startswith(e.field):
+            reason = reason[len(e.field) :].lstrip(":")
+        raise VehicleFileError(path, _FIELD_KEY.get(e.field, e.field), reason.strip()) from None
 
 
 def _number(v, path, key: str, relation: str) -> float:
@@ -211,13 +228,18 @@ def _drag(v, path) -> float:
     return _number(v, path, "drag", ">= 0")
 
 
-def _quad_x_arm(rotors, path) -> float:
-    """The arm length of a rotor list that is PX4's quad-X; VehicleFileError otherwise."""
+def _rotors(rotors, path) -> tuple[Rotor, ...]:
+    """The [[rotor]] tables as Rotors, in output order; VehicleFileError naming the rotor otherwise."""
     if not isinstance(rotors, list) or not all(isinstance(r, dict) for r in rotors):
         raise VehicleFileError(path, "rotor", f"expected [[rotor]] tables, found {_type(rotors)}")
-    if len(rotors) != 4:
-        raise VehicleFileError(path, "rotor", f"{len(rotors)} rotor table(s); {SUPPORTED_LAYOUTS}")
-    pos = []
+    if len(rotors) != NUM_MOTORS:
+        raise VehicleFileError(
+            path,
+            "rotor",
+            f"{len(rotors)} rotor table(s); expected {NUM_MOTORS} (the policy's action and the actuator outputs "
+            "carry four), in output order",
+        )
+    out = []
     for i, r in enumerate(rotors, start=1):
         where = f"rotor[{i}]"  # output number, 1-based
         unknown = sorted(set(r) - set(_ROTOR_KEYS))
@@ -231,16 +253,8 @@ def _quad_x_arm(rotors, path) -> float:
         if spin not in ("cw", "ccw"):
             found = repr(_short(spin)) if isinstance(spin, str) else _type(spin)
             raise VehicleFileError(path, f"{where}.spin", f'expected "cw" or "ccw" (seen from above), found {found}')
-        pos.append((x, y, spin))
-    a = abs(pos[0][0])
-    for i, ((x, y, spin), (sx, sy, want)) in enumerate(zip(pos, QUAD_X, strict=True), start=1):
-        symmetric = a > 0 and all(math.isclose(abs(c), a, rel_tol=_LAYOUT_RTOL) for c in (x, y))
-        if not symmetric or math.copysign(1, x) != sx or math.copysign(1, y) != sy or spin != want:
-            raise VehicleFileError(
-                path, f"rotor[{i}]", f"(x {x:g}, y {y:g}, {spin}) is not this layout's; {SUPPORTED_LAYOUTS}"
-            )
-    arm = sum(math.hypot(x, y) for x, y, _ in pos) / 4.0
-    return _round12(arm)
+        out.append(Rotor(x, y, spin))
+    return tuple(out)
 
 
 def _finite(v, path, key: str) -> float:
@@ -277,7 +291,6 @@ def vehicle_to_toml(v: VehicleParams) -> str:
         raise ValueError(f"vehicle {v.name!r}: gravity {v.gravity} is not {GRAVITY}; a vehicle file cannot hold it")
     if not NAME_PATTERN.fullmatch(v.name):
         raise ValueError(f"vehicle name {_short(v.name)!r}: a vehicle file needs 1-64 letters, digits, '_', '-', '.'")
-    c = _pick(v.arm / math.sqrt(2.0), lambda x: _round12(math.hypot(x, x)) == v.arm)
     k_torque = _pick(v.k_m * v.k_f, lambda t: _round12(t / v.k_f) == v.k_m)
     lines = [
         f'name = "{v.name}"',
@@ -288,12 +301,13 @@ def vehicle_to_toml(v: VehicleParams) -> str:
         f"k_thrust = {v.k_f!r}  # N/(rad/s)^2",
         f"k_torque = {k_torque!r}  # N m/(rad/s)^2 (k_m {v.k_m!r} m times k_thrust)",
         f"omega_max = {v.omega_max!r}  # rad/s at command 1.0",
+        f"omega_min = {v.omega_min!r}  # rad/s, idle speed of an armed motor",
         f"motor_tau = {v.motor_tau!r}  # s",
         f"drag = {v.drag!r}  # N s/m, linear, isotropic",
     ]
-    for sx, sy, spin in QUAD_X:
-        lines += ["", "[[rotor]]", f"x = {sx * c!r}  # m, forward (FRD)", f"y = {sy * c!r}  # m, right"]
-        lines.append(f'spin = "{spin}"')
+    for i, r in enumerate(v.rotors, start=1):
+        lines += ["", f"[[rotor]]  # output {i}", f"x = {r.x!r}  # m, forward (FRD)", f"y = {r.y!r}  # m, right"]
+        lines.append(f'spin = "{r.spin}"')
     return "\n".join(lines) + "\n"
 
 

@@ -199,13 +199,18 @@ def _facts(info: ModelInfo) -> _Facts:
     vehicle = info.vehicle
     if not (isinstance(vehicle.name, str) and VEHICLE_NAME_PATTERN.fullmatch(vehicle.name)):
         raise refuse("the vehicle name is not a plain identifier")
-    values = {f.name: float(getattr(vehicle, f.name)) for f in fields(vehicle) if f.name != "name"}
-    numbers = [*values.values(), float(info.control_period_s)]
+    values = {f.name: float(getattr(vehicle, f.name)) for f in fields(vehicle) if f.name not in ("name", "rotors")}
+    rotors = [(float(r.x), float(r.y), "ccw" if r.spin == "ccw" else "cw") for r in vehicle.rotors]
+    numbers = [*values.values(), *(c for x, y, _ in rotors for c in (x, y)), float(info.control_period_s)]
     numbers += [float(info.envelope["max_distance_m"]), float(info.envelope["max_tilt_deg"])]
     if not all(math.isfinite(v) and abs(v) <= FLT_MAX for v in numbers) or not numbers[-3] > 0:
         raise refuse("a vehicle, control period or envelope number is not finite")
     # the field names are VehicleParams' own; a float's repr is digits, '.', 'e', '+' and '-'
-    text = ", ".join([f'"name": "{vehicle.name}"', *(f'"{k}": {v!r}' for k, v in values.items())])
+    # a rotor's spin is one of two fixed strings (core.params.Rotor checks it; written from this table)
+    rotor_text = ", ".join(f'{{"x": {x!r}, "y": {y!r}, "spin": "{s}"}}' for x, y, s in rotors)
+    text = ", ".join(
+        [f'"name": "{vehicle.name}"', *(f'"{k}": {v!r}' for k, v in values.items()), f'"rotors": [{rotor_text}]']
+    )
     return _Facts(
         layout=layout,
         task=TASKS[TASKS.index(info.task)],

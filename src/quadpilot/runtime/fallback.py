@@ -23,10 +23,11 @@ Structure, a cascade from the slow loop to the fast one, each stage saturated be
    the desired force, thrust = that force projected on the current body z axis, desired x axis from
    the held heading, attitude error e_R = ½(R_dᵀR − RᵀR_d)^∨, moment
    M = −k_R·e_R − k_Ω·Ω + Ω × JΩ (desired body rates taken as zero: a hover controller).
-4. Mixing: total thrust and body moments → per-rotor thrusts through the inverse of the allocation
-   matrix built from `core.dynamics.MOTOR_LAYOUT` (the same geometry the model integrates),
-   roll/pitch before collective thrust before yaw when a rotor saturates, then ω = √(F/k_f) and the
-   command ω/ω_max in [0, 1] (PX4 HIL_ACTUATOR_CONTROLS convention, motor order of the model).
+4. Mixing: total thrust and body moments → per-rotor thrusts through the inverse of the vehicle's
+   allocation matrix (`core.params.allocation_matrix`: its rotor positions, spins and output order,
+   the same map the model integrates), roll/pitch before collective thrust before yaw when a rotor
+   saturates, then ω = √(F/k_f) and the command ω/ω_max in [0, 1] (PX4 HIL_ACTUATOR_CONTROLS
+   convention, the vehicle's output order).
 
 Frames as in `core`: world ENU (z up), body FLU. The observation carries no target heading, so the
 controller holds the heading it found on its first call after construction or `reset()`, and damps
@@ -43,9 +44,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quadpilot.core.dynamics import MOTOR_LAYOUT, NUM_MOTORS
 from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT
 from quadpilot.core.params import VehicleParams, get_preset
+from quadpilot.core.params import allocation_matrix as allocation_matrix  # re-exported: the mixer's matrix
 
 _HOVER_SLICES = HOVER_LAYOUT.slices()
 _TRACK_SLICES = TRACK_LAYOUT.slices()
@@ -115,8 +116,9 @@ class FallbackGains:
         k_R = J·ω_n², k_Ω = 2ζ·J·ω_n. ω_n is chosen per axis as the smaller of two bounds:
         - authority: a step of `att_ref_angle` rad (about the 35° tilt limit) should ask for no more
           angular acceleration than the rotors give at hover without losing collective thrust:
-          α_max = 4·ΔF·lever/J with ΔF = min(F_hover, F_max − F_hover), lever = arm/√2 for roll and
-          pitch, k_m for yaw; so ω_n = √(α_max/ref). The yaw lever k_m is about a tenth of the arm,
+          α_max = ΔF·Σ_i lever_i/J with ΔF = min over rotors of min(F_hover,i, F_max − F_hover,i)
+          and lever_i = |y_i| for roll, |x_i| for pitch (FLU), k_m for yaw: 4·arm/√2 and 4·k_m for
+          a quad-X; so ω_n = √(α_max/ref). The yaw lever k_m is about a tenth of the arm,
           so yaw gets the lower bandwidth, most of all on the seed vehicle;
         - sampling: ω_n·dt ≤ `max_att_freq_dt` keeps the zero-order hold's phase lag (ω·dt/2 rad)
           near 6°, where the continuous-time design still holds.
@@ -134,20 +136,19 @@ class FallbackGains:
         """
         if not (dt > 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
-        f_hover, f_max = vehicle.hover_thrust, vehicle.max_thrust
-        if not f_max > f_hover:
+        trim, f_max = vehicle.hover_thrusts, vehicle.max_thrust
+        if not f_max > float(trim.max()):
             raise ValueError(
-                f"vehicle {vehicle.name!r} cannot hover: full thrust {4 * f_max:.3g} N ≤ weight {vehicle.weight:.3g} N"
+                f"vehicle {vehicle.name!r} cannot hover: a rotor's full thrust {f_max:.3g} N is at most its hover "
+                f"thrust {float(trim.max()):.3g} N (weight {vehicle.weight:.3g} N)"
             )
-        df = min(f_hover, f_max - f_hover)  # N, per-rotor differential available around hover
-        lever_rp = vehicle.arm / math.sqrt(2.0)  # m, X frame: each rotor's moment arm about x and y
+        df = float(np.minimum(trim, f_max - trim).min())  # N, per-rotor differential available around hover
+        a = allocation_matrix(vehicle)  # rows: thrust, τx, τy, τz per newton of each rotor
         inertia = (vehicle.ixx, vehicle.iyy, vehicle.izz)
-        levers = (lever_rp, lever_rp, vehicle.k_m)
+        levers = tuple(float(np.abs(a[k]).sum()) for k in (1, 2, 3))  # m, Σ_i lever_i about x, y, z
         refs = (att_ref_angle, att_ref_angle, yaw_ref_angle)
         w_cap = max_att_freq_dt / dt
-        w_att = [
-            min(math.sqrt(4.0 * df * lv / j / ref), w_cap) for j, lv, ref in zip(inertia, levers, refs, strict=True)
-        ]
+        w_att = [min(math.sqrt(df * lv / j / ref), w_cap) for j, lv, ref in zip(inertia, levers, refs, strict=True)]
         att_p = tuple(j * w * w for j, w in zip(inertia, w_att, strict=True))
         rate_d = tuple(2.0 * att_damping * j * w for j, w in zip(inertia, w_att, strict=True))
 
@@ -175,26 +176,12 @@ class FallbackGains:
         )
 
 
-def allocation_matrix(vehicle: VehicleParams) -> np.ndarray:
-    """(4, 4) map from per-rotor thrusts (N, model motor order) to [total thrust, τx, τy, τz].
-
-    Written from `MOTOR_LAYOUT` exactly as `core.dynamics` integrates it: a rotor at (x, y) in FLU
-    pushing F along +z makes r × F = (y·F, −x·F, 0); a counter-clockwise rotor (spin +1, seen from
-    above) reacts on the body with −k_m·F about z.
-    """
-    a = vehicle.arm / math.sqrt(2.0)
-    rows = np.zeros((4, NUM_MOTORS))
-    for i, (x, y, spin) in enumerate(MOTOR_LAYOUT.values()):
-        rows[:, i] = (1.0, a * y, -a * x, -spin * vehicle.k_m)
-    return rows
-
-
 class FallbackController:
     """Cascaded position/velocity/attitude hover controller with motor mixing (one drone).
 
     `act(obs)` takes one observation in the `core.observation` hover (18) or track (21) layout and
-    returns float32 (4,) rotor commands ω/ω_max in [0, 1] in the model's (PX4 quad-X) motor order,
-    always finite. Stateful: a velocity-error integrator and the held heading; `reset()` clears both.
+    returns float32 (M,) rotor commands ω/ω_max in [0, 1] in the vehicle's output order, always
+    finite. Stateful: a velocity-error integrator and the held heading; `reset()` clears both.
     """
 
     def __init__(self, vehicle: VehicleParams, dt: float = 0.01, gains: FallbackGains | None = None) -> None:
@@ -221,12 +208,12 @@ class FallbackController:
 
         # Mixing: split the inverse allocation into the collective, roll/pitch and yaw columns, so
         # saturation can give way in order of importance.
-        inv = np.linalg.inv(allocation_matrix(vehicle))
-        self._mix_f = inv[:, 0].copy()  # per-rotor thrust per newton of collective (¼ each)
+        inv = np.linalg.inv(allocation_matrix(vehicle))  # four rotors: square, and invertible (VehicleParams)
+        self._mix_f = inv[:, 0].copy()  # per-rotor thrust per newton of collective (¼ each on a balanced frame)
         self._mix_rp = inv[:, 1:3].copy()
         self._mix_yaw = inv[:, 3].copy()
         self._f_max = vehicle.max_thrust  # N per rotor at command 1
-        self._hover = np.full(NUM_MOTORS, vehicle.hover_command, dtype=np.float32)
+        self._hover = np.asarray(vehicle.hover_commands, dtype=np.float32)
 
         self._integral = np.zeros(3)  # m, ∫(v_sp − v) dt in the world frame
         self._heading: tuple[float, float] | None = None  # (cos ψ, sin ψ) held
@@ -239,7 +226,7 @@ class FallbackController:
 
     @property
     def hover_command(self) -> np.ndarray:
-        """float32 (4,): the nominal hover trim, returned for any non-finite observation."""
+        """float32 (M,): the nominal hover trim per rotor, returned for any non-finite observation."""
         return self._hover.copy()
 
     def reset(self) -> None:
@@ -252,7 +239,7 @@ class FallbackController:
 
         obs: float (18,) hover layout or (21,) track layout (`core.observation`): position error
         Rᵀ(p − p_target), velocity Rᵀv, R body→world row-major, body rates [, target velocity Rᵀv_t].
-        Returns float32 (4,) in [0, 1], ω/ω_max per rotor in `core.dynamics.MOTOR_LAYOUT` order.
+        Returns float32 (M,) in [0, 1], ω/ω_max per rotor in the vehicle's output order.
         A non-finite observation (or one with a value beyond ±1e6) returns the hover trim and
         leaves the integrator and the held heading untouched.
         """
@@ -339,9 +326,12 @@ class FallbackController:
         spread = float(d_rp.max() - d_rp.min())
         if spread > f_max:
             d_rp *= f_max / spread
-        base = thrust * self._mix_f[0]  # ¼ of the collective per rotor
-        base = min(max(base, -float(d_rp.min())), f_max - float(d_rp.max()))
-        per_rotor = base + d_rp
+        # collective T with rotor i at T·c_i + d_i: keep every rotor in [0, f_max] where some T can
+        # (c_i > 0: a flyable vehicle's hover trim is positive on every rotor)
+        c = self._mix_f
+        lo, hi = float((-d_rp / c).max()), float(((f_max - d_rp) / c).min())
+        t = min(max(thrust, lo), hi) if lo <= hi else lo
+        per_rotor = t * c + d_rp
         d_yaw = self._mix_yaw * moment[2]
         # largest scale s ∈ [0, 1] keeping per_rotor + s·d_yaw within [0, f_max]
         scale = 1.0

@@ -7,8 +7,10 @@ boundaries"). The rules this module enforces, in one place, before any backend s
   the observation layout (found by name in `core.observation`, with the same fields); the action
   meaning (the text of the schema, `ACTION_MEANING`); the task (one of `core.mission.TASKS`); the
   source checkpoint's SHA-256 (64 lowercase hex digits); the control period and training steps;
-  the vehicle (`VehicleParams` checks its numbers, its name is a plain identifier, its hover command
-  is the architecture's u_hover); the envelope; the architecture (known keys only, finite ordered
+  the vehicle (`VehicleParams` checks its numbers and its rotor layout, four rotors a multirotor can
+  fly with; metadata without a rotor list, as every file written before there were lists, is PX4's
+  quad-X of its `arm`; its name is a plain identifier, its hover command is the architecture's
+  u_hover); the envelope; the architecture (known keys only, finite ordered
   clips, bounded sizes); the golden vectors (finite, bounded count). JSON NaN and Infinity are
   refused. Strings read from the file are never executed and never pasted into generated code:
   `cgen` writes only numbers it formats itself and text from this runtime's own tables, and the

@@ -36,6 +36,9 @@ from quadpilot.core.reward import RewardConfig, circle_errors, circle_reward, cr
 from quadpilot.core.sensor_noise import SensorNoise, SensorNoiseState, get_sensor_noise
 from quadpilot.core.start import sample_ball, sample_start_states
 
+INIT_ROTOR = ("hover", "rest", "random")
+"""`EnvConfig.init_rotor` values."""
+
 
 @dataclass(frozen=True)
 class EnvConfig:
@@ -45,7 +48,7 @@ class EnvConfig:
     """hover: reach and hold `home`; waypoint: start at `home`, reach a target drawn within
     `target_radius` of it; circle: follow a point moving round a circle about `home`."""
     vehicle: str | VehicleParams = "seed"
-    """Airframe: a preset name ("seed", "crazyflie") or a VehicleParams (e.g. one read from a vehicle
+    """Airframe: a preset name ("seed", "crazyflie", "px4_sih_quadx") or a VehicleParams (e.g. one read from a vehicle
     file, `core.vehicle_file.load_vehicle_file`); either way checkpoints and ONNX metadata hold the
     whole parameter set."""
     home: tuple[float, float, float] = HOME["hover"]
@@ -64,6 +67,10 @@ class EnvConfig:
     """deg, start roll and pitch uniform in ±init_tilt_deg; yaw is uniform in [−180°, 180°)."""
     init_rate: float = 0.0
     """rad/s, each start body rate uniform in ±init_rate."""
+    init_rotor: str = "hover"
+    """Rotor speed at the start of an episode: "hover" (every rotor at the hover command, spinning as
+    in flight), "rest" (stopped: with a motor lag the rotors spin up first, as a vehicle dropped with
+    its motors off or just armed), "random" (one speed per drone, uniform between rest and hover)."""
     target_radius: float = 0.5
     """m, waypoint: target uniform in a ball of this radius around home (the curriculum stage)."""
     circle_radius: float = CIRCLE_RADIUS
@@ -103,6 +110,8 @@ class EnvConfig:
             raise ValueError("episode_steps and substeps must be ≥ 1 and dt > 0")
         if len(self.home) != 3:
             raise ValueError(f"home must be (x, y, z) in metres, got {self.home!r}")
+        if self.init_rotor not in INIT_ROTOR:
+            raise ValueError(f"init_rotor must be one of {INIT_ROTOR}, got {self.init_rotor!r}")
         if not (self.sensor_noise is None or isinstance(self.sensor_noise, SensorNoise)):
             get_sensor_noise(self.sensor_noise)  # an unknown preset name fails here, naming the known ones
 
@@ -187,7 +196,7 @@ class QuadBatch:
         self.home = np.asarray(cfg.home, dtype=self.dtype)
         self.target_radius = cfg.target_radius
         self.state = np.zeros((n, dynamics.STATE_DIM), self.dtype)
-        self.rotor = np.full((n, 4), self.u_hover, self.dtype)
+        self.rotor = np.full((n, self.params.n_rotors), self.u_hover, self.dtype)
         self.target = np.tile(self.home, (n, 1))
         self.target_vel = np.zeros((n, 3), self.dtype)
         self.phase = np.zeros(n)  # circle: angle of the target point at t = 0
@@ -230,7 +239,12 @@ class QuadBatch:
         self.state[idx] = sample_start_states(rng, start, c.init_pos_radius, c.init_vel, c.init_tilt_deg, c.init_rate)
         if self.randomizer is not None:  # a new ParamBatch (dynamics re-derives its constants)
             self.params = self.randomizer.resample(self.params, idx, rng, c.episode_steps)
-        self.rotor[idx] = self.u_hover
+        if c.init_rotor == "hover":
+            self.rotor[idx] = self.u_hover
+        elif c.init_rotor == "rest":
+            self.rotor[idx] = 0.0
+        else:  # "random": drawn only with this option, so the default draws what it always drew
+            self.rotor[idx] = (self.u_hover * rng.random(k))[:, None]
         self.steps[idx] = 0
         self.ep_return[idx] = 0.0
         self.err_sum[idx] = 0.0
