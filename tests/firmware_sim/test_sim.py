@@ -86,6 +86,8 @@ def connect(port: int, proto: str = "tcp"):
     # pymavlink's own connection (a PX4-like peer), given a MAVLink 2 codec from the first byte
     c.mav = new_codec(c, 255, 190)
     c.WIRE_PROTOCOL_VERSION, c.first_byte = "2.0", False
+    if proto == "tcp":  # an autopilot announces itself first: a PX4-API simulator waits for it (UDP tests send it)
+        c.mav.heartbeat_send(2, 12, 0, 0, 3)  # MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_PX4, MAV_STATE_STANDBY
     return c
 
 
@@ -285,7 +287,7 @@ def test_garbage_bad_crc_unknown_ids_and_bad_commands_are_dropped_and_counted():
             "unknown_message_id": 1,
         }
         assert 1 <= sim.stats.dropped["garbage"] <= len(garbage)
-        assert sim.stats.heartbeats == 1
+        assert sim.stats.heartbeats == 2  # the one connect() sends first, and this one
         # bad values while armed: the packet is dropped, the motors keep the previous command, and
         # the step still happens (the peer waits for its next HIL_SENSOR)
         for bad in (math.nan, math.inf, 1.5, -0.1):

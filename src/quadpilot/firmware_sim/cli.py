@@ -16,7 +16,7 @@ from quadpilot.core.params import PRESETS
 from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError, is_vehicle_path, resolve_vehicle
 from quadpilot.link.transport import SigningError, SimulatorError, parse_address, read_key
 
-from .config import DEFAULT_WIND_DRAG, SimConfig
+from .config import DEFAULT_WIND_DRAG, START_MODES, SimConfig
 from .process import Simulator
 from .records import SimStats
 
@@ -101,6 +101,12 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         help=f"airframe: a shipped vehicle or a vehicle file (core.vehicle_file; default {d.vehicle})",
     )
     p.add_argument("--task", choices=TASKS, default=d.task, help="where episodes start (core.mission; default hover)")
+    p.add_argument(
+        "--start",
+        choices=START_MODES,
+        default=d.start,
+        help="air: in flight, rotors at hover speed (default); landed: at rest on the ground at home, rotors at rest",
+    )
     p.add_argument("--mass-scale", type=_positive, default=d.mass_scale, help="multiplies the mass")
     p.add_argument("--inertia-scale", type=_positive, default=d.inertia_scale, help="multiplies the inertias")
     p.add_argument("--motor-scale", type=_positive, default=d.motor_scale, help="multiplies the thrust coefficient k_f")
@@ -178,6 +184,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             **file_kw,
             listen=args.listen,
             task=args.task,
+            start=args.start,
             vehicle=vehicle,
             mass_scale=args.mass_scale,
             inertia_scale=args.inertia_scale,
@@ -236,7 +243,7 @@ def main_sim_only(argv: list[str] | None = None, prog: str = "quad-sitl") -> int
     try:
         address = sim.bind()
         mode = "lockstep" if cfg.lockstep else "realtime"
-        what = f"{mode}, vehicle {vehicle_label(cfg)}, seed {cfg.seed}"
+        what = f"{mode}, {cfg.start} start, vehicle {vehicle_label(cfg)}, seed {cfg.seed}"
         print(f"{prog}: simulator listening on {address} ({what})", flush=True)
         stats = sim.serve()
     except SimulatorError as e:

@@ -14,17 +14,22 @@ import numpy as np
 
 from quadpilot.core import dynamics
 from quadpilot.core.mission import TASKS, Mission, plan_episode
-from quadpilot.core.params import PRESETS, VehicleParams, get_preset
-from quadpilot.core.sensor_noise import SensorNoise, get_sensor_noise
+from quadpilot.core.params import VehicleParams, get_preset
+from quadpilot.core.sensor_noise import SENSOR_NOISE_PRESETS, SensorNoise, get_sensor_noise
 from quadpilot.core.start import sample_start_states
 from quadpilot.link import wire
 from quadpilot.link.transport import Address, parse_address
+
+from .plant import landed_state
 
 DEFAULT_WIND_DRAG = 0.2
 """N·s/m, linear drag used when there is wind and neither the preset nor `SimConfig.drag` gives
 one. An assumed order of magnitude for a ~0.7 kg quadrotor under the linear rotor-drag model
 (Faessler, Franchi and Scaramuzza, RA-L 2018), not identified for this airframe: a 5 m/s wind then
 pushes with 1 N, 15 % of the seed vehicle's weight."""
+
+START_MODES = ("air", "landed")
+"""`SimConfig.start`: where an episode starts."""
 
 
 @dataclass(frozen=True)
@@ -36,7 +41,7 @@ class SimConfig:
     """Where to listen: tcp:HOST:PORT (PX4's simulators use TCP 4560) or udp:HOST:PORT. Port 0
     picks a free port (see `Simulator.address`). Loopback by default."""
     vehicle: str = "seed"
-    """Airframe preset name ("seed", "crazyflie"), see `core.params.get_preset`."""
+    """Airframe preset name ("seed", "crazyflie", "px4_sih_quadx"), see `core.params.get_preset`."""
     mass_scale: float = 1.0
     """Multiplies the preset's mass (the controller still believes the nominal one)."""
     inertia_scale: float = 1.0
@@ -59,7 +64,8 @@ class SimConfig:
     """Noisy gyro and accelerometer in HIL_SENSOR: the IMU of the vehicle's `core.sensor_noise`
     preset (seed: ADIS16448 with PX4's Gazebo IMU plugin defaults, white noise σ = density/√dt, 3.4e-3
     rad/s and 0.04 m/s² at 100 Hz, plus turn-on bias and bias random walk; crazyflie: BMI088), the
-    model the training environments use. The ground truth in HIL_STATE_QUATERNION stays exact."""
+    model the training environments use; refused for a vehicle without one (px4_sih_quadx). The
+    ground truth in HIL_STATE_QUATERNION stays exact."""
     estimator_noise: bool = False
     """Also send ODOMETRY each step: the state as an estimator would report it (the vehicle's
     `core.sensor_noise` estimator model: cm-level position, velocity and attitude errors), which the
@@ -103,6 +109,10 @@ class SimConfig:
     """Safety bound on the steps of one episode (360 000 × 0.01 s = one hour)."""
     initial_state: tuple[float, ...] | None = None
     """Explicit 12-state (ENU/FLU, SI) every episode starts from, instead of sampling one."""
+    start: str = "air"
+    """air: each episode starts in flight, rotors at hover speed (`initial_state`, or a draw from the
+    training start distribution). landed: at rest on the ground (`plant.GROUND_Z`) at the home
+    position (the local origin), level, nose east (yaw 0), rotors at rest (`plant.landed_state`)."""
     signing_key: bytes | None = field(default=None, repr=False)
     """MAVLink 2 signing key (32 bytes): sign every message and accept only authentic, fresh,
     signed ones (`link.transport.SigningMAVLink`); the replay window carries over between episodes."""
@@ -151,14 +161,20 @@ class SimConfig:
             raise ValueError(f"episodes must be an integer ≥ 1 or None (for ever), got {self.episodes!r}")
         if self.signing_key is not None and (not isinstance(self.signing_key, bytes) or len(self.signing_key) != 32):
             raise ValueError("signing_key must be 32 bytes")
-        if self.airframe is not None:
-            if not isinstance(self.airframe, VehicleParams):
-                raise ValueError(f"airframe must be a VehicleParams, got {type(self.airframe).__name__}")
-            if (self.imu_noise or self.estimator_noise) and self.airframe.name != self.vehicle:
-                raise ValueError(
-                    f"--imu-noise/--estimator-noise: no sensor model for vehicle {self.airframe.name!r} "
-                    f"(sensor models exist for {', '.join(sorted(PRESETS))})"
-                )
+        if self.airframe is not None and not isinstance(self.airframe, VehicleParams):
+            raise ValueError(f"airframe must be a VehicleParams, got {type(self.airframe).__name__}")
+        # the noise models belong to an airframe preset (`core.sensor_noise`), and not every preset has
+        # them (px4_sih_quadx has none): asked for noise, a vehicle without them is refused here, once
+        flown = self.airframe.name if self.airframe is not None else self.vehicle
+        if (self.imu_noise or self.estimator_noise) and (flown != self.vehicle or flown not in SENSOR_NOISE_PRESETS):
+            raise ValueError(
+                f"--imu-noise/--estimator-noise: no sensor model for vehicle {flown!r} "
+                f"(sensor models exist for {', '.join(sorted(SENSOR_NOISE_PRESETS))})"
+            )
+        if self.start not in START_MODES:
+            raise ValueError(f"start must be one of {START_MODES}, got {self.start!r}")
+        if self.start == "landed" and self.initial_state is not None:
+            raise ValueError("start 'landed' puts the vehicle on the ground: give it or initial_state, not both")
         if self.initial_state is not None:
             s = np.asarray(self.initial_state, dtype=np.float64)
             if s.shape != (dynamics.STATE_DIM,) or not np.all(np.isfinite(s)):
@@ -203,14 +219,14 @@ class SimConfig:
     @property
     def gyro_noise_std(self) -> float:
         """rad/s per sample (white part), 0 without `imu_noise`."""
-        imu = get_sensor_noise(self.vehicle).imu
-        return imu.gyro_noise_density / math.sqrt(self.dt) if self.imu_noise and imu else 0.0
+        imu = get_sensor_noise(self.vehicle).imu if self.imu_noise else None  # only then has a model
+        return imu.gyro_noise_density / math.sqrt(self.dt) if imu else 0.0
 
     @property
     def accel_noise_std(self) -> float:
         """m/s² per sample (white part), 0 without `imu_noise`."""
-        imu = get_sensor_noise(self.vehicle).imu
-        return imu.accel_noise_density / math.sqrt(self.dt) if self.imu_noise and imu else 0.0
+        imu = get_sensor_noise(self.vehicle).imu if self.imu_noise else None  # only then has a model
+        return imu.accel_noise_density / math.sqrt(self.dt) if imu else 0.0
 
     def mission(self, episode: int) -> Mission:
         return plan_episode(self.task, self.seed, episode, self.dt)
@@ -223,10 +239,12 @@ class SimConfig:
         return np.asarray(m.home if self.task == "circle" else m.target, np.float64)
 
     def start_state(self, episode: int) -> tuple[np.ndarray, np.random.Generator]:
-        """(12-state, generator) of episode `episode`: `initial_state`, or a draw from the training
-        start distribution with np.random.default_rng([seed, episode]); the generator then feeds
-        the sensor noise."""
+        """(12-state, generator) of episode `episode`: landed (`start`), `initial_state`, or a draw
+        from the training start distribution with np.random.default_rng([seed, episode]); the
+        generator then feeds the sensor noise."""
         rng = np.random.default_rng([self.seed, episode])
+        if self.start == "landed":
+            return landed_state(), rng
         if self.initial_state is not None:
             return np.array(self.initial_state, dtype=np.float64), rng
         if self.task != "hover":

@@ -1,5 +1,9 @@
 """The simulated vehicle's physics (`Plant`): `core.dynamics.step` on a batch of one, with wind and
-gusts as its external force, kept inside the domain the model holds in.
+gusts as its external force, a ground plane under it, kept inside the domain the model holds in.
+
+The ground is the simulator's alone (the training environments have none: `core.dynamics` is
+free flight). It is the plane z = GROUND_Z of the world ENU frame, at the home position's altitude,
+and the vehicle touches it with its centre of mass (the state's position): landed means z = 0.
 """
 
 from __future__ import annotations
@@ -16,6 +20,18 @@ from quadpilot.link import wire
 from . import sensors
 
 _HALF_PI = 0.5 * math.pi
+_MOTORS_OFF = np.zeros(1, bool)  # core.dynamics.step's `armed` for the batch of one, motors off
+
+GROUND_Z = 0.0
+"""m, world ENU: height of the ground plane (the home position's altitude, `SimConfig.home`)."""
+
+GROUND_FRICTION = 0.5
+"""Coulomb friction coefficient between the vehicle's feet and the ground, one value for sticking
+and sliding. PX4's SIH uses 0.5 (static) and 0.4 (kinetic) for its rover's wheels on the ground
+(PX4-Autopilot src/modules/simulation/simulator_sih/sih.cpp, generate_rover_ackermann_dynamics,
+MU_S and MU_K); this model takes the static one. With 0.5 a vehicle sliding on the ground with
+its motors off decelerates at 0.5·g ≈ 4.9 m/s², and a level one at rest holds against a side force
+of up to half its weight."""
 
 
 class Plant:
@@ -30,7 +46,26 @@ class Plant:
     tumble. Roll and pitch are kept in [−π, π] and [−π/2, π/2] (the same attitude: `core.frames`'
     ZYX angles of its rotation matrix) so that a tumble through pitch ±90° does not wind them up.
     Position and velocity need nothing: thrust and gravity are bounded, so they grow at most
-    linearly and quadratically in time."""
+    linearly and quadratically in time.
+
+    The ground (`_touch_ground`) is a unilateral contact resolved once per step on velocities, the
+    time-stepping form of rigid contact with Coulomb friction (Stewart and Trinkle, "An implicit
+    time-stepping scheme for rigid body dynamics with inelastic collisions and Coulomb friction",
+    IJNME 39(15), 1996), for one contact point, the centre of mass. When the free-flight step
+    (`core.dynamics.step`) would carry the vehicle from above the plane to below it, the ground
+    applies the smallest upward impulse that stops the descent (an inelastic impact: no bounce) and a
+    horizontal friction impulse of at most GROUND_FRICTION times it (Coulomb: it stops the sliding
+    when it can, so a vehicle at rest stays at rest and one sliding decelerates at μ·g); the
+    vehicle ends the step on the plane, never below it. Roll, pitch and the body rates are set to
+    zero on contact, keeping the yaw: the landing gear stands level on flat ground, as RotorPy 3.0.0
+    does (rotorpy/vehicles/multirotor.py, `_handle_vehicle_on_ground`, whose per-step velocity
+    damping this Coulomb law replaces). PX4's SIH (sih.cpp, `equations_of_motion`, "fake ground")
+    cancels the net force once the vehicle is already below the ground and stops it in one step,
+    which lets it sink by up to one step of travel (6 cm at 6 m/s and 100 Hz): the impulse here acts
+    in the step that would cross the plane instead. Lift-off needs nothing: with thrust above the
+    weight the free step ends above the plane and no contact is made. The model has no tipping over
+    and no bounce; a vehicle that starts below the plane (only an explicit `SimConfig.initial_state`
+    can put it there) is under the ground and falls freely."""
 
     def __init__(
         self,
@@ -40,6 +75,7 @@ class Plant:
         gust_std: float = 0.0,
         gust_tau_s: float = 2.0,
         rng: np.random.Generator | None = None,
+        ground_friction: float = GROUND_FRICTION,
     ) -> None:
         self.vehicle = vehicle
         self.params = ParamBatch.from_preset(vehicle, 1)
@@ -58,39 +94,108 @@ class Plant:
         self.gust = np.zeros(3)
         self._f_max = vehicle.k_f * vehicle.omega_max**2  # N per rotor at command 1
         self.hover_command = float(vehicle.hover_command)
+        self.ground_friction = float(ground_friction)
         self.state = np.zeros(dynamics.STATE_DIM)
         self.rotor = np.full(dynamics.NUM_MOTORS, self.hover_command)
         self.rate_limited_steps = 0
         """Steps whose body rates had to be saturated at MAX_BODY_RATE (see the class docstring)."""
+        self.on_ground = False
+        """The ground held the vehicle in the last step (or it starts resting on it)."""
+        self.impact_speed = 0.0
+        """m/s, the downward speed the ground took away in the last step (0 in the air; at rest g·dt)."""
+        self._contact_acc: np.ndarray | None = None  # m/s², world ENU: the ground's force / mass
 
-    def reset(self, state: np.ndarray) -> None:
-        """Start from `state` (12,) with the rotors at hover speed."""
+    def reset(self, state: np.ndarray, rotor: np.ndarray | None = None) -> None:
+        """Start from `state` (12,) with the rotors at `rotor` (4,) ω/ω_max; None: at rest for a
+        vehicle resting on the ground (`resting_on_ground`: a landed start), at hover speed otherwise."""
         self.state = np.array(state, dtype=np.float64).reshape(dynamics.STATE_DIM)
-        self.rotor = np.full(dynamics.NUM_MOTORS, self.hover_command)
+        resting = resting_on_ground(self.state)
+        if rotor is None:
+            self.rotor = np.full(dynamics.NUM_MOTORS, 0.0 if resting else self.hover_command)
+        else:
+            self.rotor = np.array(rotor, dtype=np.float64).reshape(dynamics.NUM_MOTORS)
         self.rate_limited_steps = 0
         self.gust = self._rng.normal(0.0, self.gust_std, 3) if self.gust_std > 0 else np.zeros(3)
+        self.impact_speed = 0.0
+        self._contact_acc = self._support() if resting else None
+        self.on_ground = self._contact_acc is not None
 
     @property
     def air(self) -> np.ndarray:
         """m/s, world ENU: the wind now (constant part plus gust)."""
         return self.wind + self.gust
 
-    def step(self, command: np.ndarray) -> None:
-        """Advance one dt with `command` (4,) in [0, 1] held."""
+    def step(self, command: np.ndarray, armed: bool | None = None) -> None:
+        """Advance one dt with `command` (4,) in [0, 1] held. `armed` False: the motors are off, and
+        the rotors spin down to a stop even on a vehicle whose armed motors idle at ω_min > 0
+        (`core.dynamics`, `armed`). None: off when every command is exactly 0, which is what the
+        simulator holds for a disarmed peer (`protocol`, a disarmed HIL_ACTUATOR_CONTROLS) and after
+        the ESC timeout (`process`); an armed peer commanding 0 on every motor is then read as off
+        too. With ω_min = 0 (the shipped vehicles) off and a zero command are the same step."""
+        command = np.asarray(command, np.float64)
+        if armed is None:
+            armed = bool(command.any())
         force = self._wind_force
         if self.gust_std > 0:
             self.gust = self._gust_decay * self.gust + self._gust_kick * self._rng.normal(size=3)
             force = self.vehicle.drag * self.air
+        before = self.state
         s, w = dynamics.step(
-            self.state[None],
+            before[None],
             self.rotor[None],
-            np.asarray(command, np.float64)[None],
+            command[None],
             self.params,
             self.dt,
             force=force[None] if force.any() else None,
+            armed=None if armed else _MOTORS_OFF,
         )
         self.state, self.rotor = s[0], w[0]
+        if before[2] >= GROUND_Z > self.state[2]:  # the free step would cross the plane downwards
+            self._touch_ground(before, self.state)
+        elif self.on_ground:
+            self.on_ground, self.impact_speed, self._contact_acc = False, 0.0, None
         self._keep_in_domain(self.state)
+
+    def _touch_ground(self, before: np.ndarray, s: np.ndarray) -> None:
+        """Resolve the contact of the step from `before` whose free-flight end is `s`, in place (see
+        the class docstring): velocity impulses, then the position they give, then the level stance."""
+        vx, vy, vz = v_free = s[3:6].tolist()
+        normal = max(-vz, 0.0)  # m/s, the normal impulse per unit mass: it stops the descent
+        slip = math.hypot(vx, vy)
+        limit = self.ground_friction * normal  # m/s, Coulomb: friction impulse ≤ μ · normal impulse
+        if slip <= limit:
+            vx = vy = 0.0  # friction stops the sliding (and keeps a vehicle at rest where it is)
+        else:
+            keep = 1.0 - limit / slip
+            vx, vy = vx * keep, vy * keep
+        h = self.dt
+        # The velocity changed by a constant impulse over the step: the position moves by the mean of
+        # the start and end velocities (core.dynamics' constant-acceleration formula, with the
+        # friction added); the height is the plane's.
+        s[0] = before[0] + 0.5 * h * (before[3] + vx)
+        s[1] = before[1] + 0.5 * h * (before[4] + vy)
+        s[2] = GROUND_Z
+        s[3], s[4], s[5] = vx, vy, vz + normal
+        s[6] = s[7] = 0.0  # standing level on its landing gear; the yaw stays
+        s[9:12] = 0.0
+        self.on_ground = True
+        self.impact_speed = normal
+        self._contact_acc = (s[3:6] - np.asarray(v_free)) / h
+
+    def _support(self) -> np.ndarray | None:
+        """m/s², world ENU: the ground's force / mass holding a resting vehicle where it is, under
+        its rotors, gravity and the air: the normal force cancels the net downward force, friction the
+        horizontal one up to μ times the normal force. None when nothing presses it down."""
+        v = self.vehicle
+        thrust_up = euler_to_rotmat(*self.state[6:9])[:, 2] * (self.thrust_n / v.mass)
+        net = thrust_up + v.drag * (self.air - self.state[3:6]) / v.mass
+        net[2] -= v.gravity
+        if net[2] >= 0.0:
+            return None
+        normal = -net[2]
+        side = math.hypot(net[0], net[1])
+        grip = 1.0 if side <= self.ground_friction * normal else self.ground_friction * normal / side
+        return np.array([-net[0] * grip, -net[1] * grip, normal])
 
     def _keep_in_domain(self, s: np.ndarray) -> None:
         """Saturate the body rates and canonicalise roll and pitch, in place (class docstring)."""
@@ -109,5 +214,20 @@ class Plant:
         return float(self._f_max * np.sum(self.rotor * self.rotor))
 
     def specific_force_flu(self) -> np.ndarray:
-        """m/s², body FLU, what an ideal accelerometer reads now."""
-        return sensors.specific_force_flu(self.state, self.thrust_n, self.vehicle.mass, self.vehicle.drag, self.air)
+        """m/s², body FLU, what an ideal accelerometer reads now (with the ground's force while the
+        vehicle is on it: (0, 0, +g) at rest there, as a real IMU reads)."""
+        return sensors.specific_force_flu(
+            self.state, self.thrust_n, self.vehicle.mass, self.vehicle.drag, self.air, self._contact_acc
+        )
+
+
+def resting_on_ground(state: np.ndarray) -> bool:
+    """A 12-state standing still on the ground plane: at its height, with no velocity (a landed start)."""
+    return bool(state[2] == GROUND_Z and not np.any(state[3:6]))
+
+
+def landed_state(yaw: float = 0.0) -> np.ndarray:
+    """(12,) at rest on the ground at the home position (the local origin), level, heading `yaw` (rad, ENU)."""
+    s = np.zeros(dynamics.STATE_DIM)
+    s[2], s[8] = GROUND_Z, yaw
+    return s

@@ -172,7 +172,11 @@ class Simulator:
         self._io.send_step(link, plant, n, self._sensors)
         if ep.first_crash_step is None:
             s = plant.state[None]
-            if crashed(s, s[:, 0:3] - self._target, self._reward)[0]:
+            # The ground holds the drone at z = 0, so `crashed`'s "below ground" never fires here:
+            # a flight started in the air that touches the ground has crashed (the event z < 0 was
+            # before the ground plane); a landed start rests on it by design.
+            hit_ground = plant.on_ground and self.cfg.start == "air"
+            if hit_ground or crashed(s, s[:, 0:3] - self._target, self._reward)[0]:
                 ep.first_crash_step = n
         return n
 

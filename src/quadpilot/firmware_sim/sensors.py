@@ -75,13 +75,18 @@ def magnetometer_flu(state: np.ndarray, field_ned=MAG_NED_GAUSS) -> np.ndarray:
     return world_to_body(state, (e, n, -d))  # NED → ENU
 
 
-def specific_force_flu(state: np.ndarray, thrust_n: float, mass: float, drag: float, wind_enu) -> np.ndarray:
+def specific_force_flu(
+    state: np.ndarray, thrust_n: float, mass: float, drag: float, wind_enu, contact_enu=None
+) -> np.ndarray:
     """What an accelerometer measures, m/s² in body FLU: the non-gravitational force over mass.
-    Rotor thrust acts along body +z; air drag, drag·(wind − v), acts in the world frame. At rest
-    or hovering it is (0, 0, +g); in free fall, zero."""
+    Rotor thrust acts along body +z; air drag, drag·(wind − v), acts in the world frame, and so does
+    the ground's force over mass, `contact_enu` (m/s², None: not touching it). Hovering, or at rest
+    on the ground, it is (0, 0, +g); in free fall, zero."""
     f = np.array([0.0, 0.0, thrust_n / mass])
     if drag:
         f += world_to_body(state, drag * (np.asarray(wind_enu, np.float64) - state[3:6]) / mass)
+    if contact_enu is not None:
+        f += world_to_body(state, contact_enu)
     return f
 
 
