@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from quadpilot.studies import compare
+from quadpilot.studies import compare, compare_report
 from quadpilot.train.ppo import PPOConfig
 from quadpilot.train.runlog import MetricsLog, write_json
 
@@ -133,14 +133,15 @@ def test_report_writes_figures_and_only_its_own_section(tmp_path):
     )
     doc = tmp_path / "docs" / "comparison.md"
     doc.parent.mkdir()
-    doc.write_text(f"# Title\n\nmy analysis\n\n{compare.BEGIN}\nold tables\n{compare.END}\n\nmore prose\n")
+    begin, end = compare_report.BEGIN, compare_report.END
+    doc.write_text(f"# Title\n\nmy analysis\n\n{begin}\nold tables\n{end}\n\nmore prose\n")
     figures = tmp_path / "docs" / "comparison"
     assert compare.main(["report", str(sweep_dir), "--doc", str(doc), "--figures", str(figures)]) == 0
     text = doc.read_text()
-    assert text.startswith("# Title\n\nmy analysis\n\n" + compare.BEGIN) and text.endswith(
-        compare.END + "\n\nmore prose\n"
+    assert text.startswith("# Title\n\nmy analysis\n\n" + compare_report.BEGIN) and text.endswith(
+        compare_report.END + "\n\nmore prose\n"
     )
-    assert "old tables" not in text and text.count(compare.BEGIN) == 1
+    assert "old tables" not in text and text.count(compare_report.BEGIN) == 1
     png = figures / "hover-fast.png"
     assert png.read_bytes()[:4] == b"\x89PNG" and png.stat().st_size < 200_000
     assert "](comparison/hover-fast.png)" in text
@@ -152,14 +153,14 @@ def test_report_writes_figures_and_only_its_own_section(tmp_path):
     assert "quad-compare run --out sweep" in text
     # a second report replaces its section, nothing else
     assert compare.main(["report", str(sweep_dir), "--doc", str(doc), "--figures", str(figures)]) == 0
-    assert doc.read_text().count(compare.BEGIN) == 1 and "more prose" in doc.read_text()
+    assert doc.read_text().count(compare_report.BEGIN) == 1 and "more prose" in doc.read_text()
 
 
 def test_forward_fill_and_band():
-    y = compare._ffill(np.array([np.nan, 1.0, np.nan, 3.0, np.nan]))
+    y = compare_report._ffill(np.array([np.nan, 1.0, np.nan, 3.0, np.nan]))
     assert np.isnan(y[0]) and list(y[1:]) == [1.0, 1.0, 3.0, 3.0]
     grid = np.array([0.0, 1.0, 2.0])
-    mean, lo, hi = compare._band(
+    mean, lo, hi = compare_report._band(
         [(np.array([0.0, 2.0]), np.array([0.0, 2.0])), (grid, np.array([2.0, 2.0, 2.0]))], grid
     )
     assert list(mean) == [1.0, 1.5, 2.0] and list(lo) == [0.0, 1.0, 2.0] and list(hi) == [2.0, 2.0, 2.0]

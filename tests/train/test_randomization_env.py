@@ -140,5 +140,3 @@ def test_quad_train_randomize_flag(tmp_path, capsys):
     plain = tmp_path / "plain"
     assert main(["--task", "hover", "--out", str(plain), *CLI_TINY, "--total-steps", "1024"]) == 0
     assert json.loads((plain / "config.json").read_text())["env"]["randomization"] is None
-    assert main(["--task", "hover", "--out", str(tmp_path / "x"), "--algo", "sb3", "--randomize"]) == 2
-    assert "--randomize trains our PPO only" in capsys.readouterr().err

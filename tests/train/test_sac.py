@@ -269,7 +269,7 @@ def test_a_torn_checkpoint_resumes_from_the_previous_one(tmp_path, capsys):
         (["--algo", "sac", "--set", "tau=lots"], "'lots' is not a valid float"),
         (["--algo", "sac", "--set", "tau=2"], "tau must be in (0, 1]"),
         (["--algo", "sac", "--preset", "fast"], "--preset chooses a PPO recipe"),
-        (["--set", "tau=0.01"], "--set sets SAC hyper-parameters; it needs --algo sac"),
+        (["--set", "tau=0.01"], "expected NAME=VALUE with NAME a PPO hyper-parameter"),  # PPO's, without --algo
     ],
 )
 def test_bad_sac_requests_exit_2_with_one_line(tmp_path, capsys, args, message):

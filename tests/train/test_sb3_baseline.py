@@ -62,22 +62,6 @@ def linears(module) -> list[torch.nn.Linear]:
     return [m for m in module.modules() if isinstance(m, torch.nn.Linear)]
 
 
-def test_every_ppoconfig_field_has_a_mapping_or_a_stated_difference():
-    fields = {f.name for f in dataclasses.fields(PPOConfig)}
-    assert set(sb.FIELD_MAP) == fields, (
-        f"add these PPOConfig fields to sb3_baseline.FIELD_MAP: {sorted(fields - set(sb.FIELD_MAP))}; "
-        f"remove these: {sorted(set(sb.FIELD_MAP) - fields)}"
-    )
-    for name, (path, note) in sb.FIELD_MAP.items():
-        assert path is not None or note, f"{name}: no SB3 parameter and no stated difference"
-    settings = sb.sb3_settings(ODD)
-    for path, _ in sb.FIELD_MAP.values():
-        if path is not None:
-            sb._get(settings, path)  # every path exists
-    assert len(sb.settings_rows(ODD)) == len(fields)
-    json.dumps(settings)  # saved in config.json
-
-
 def test_the_sb3_model_gets_every_matched_setting():
     model, _, norm = build(ODD)
     assert (model.n_envs, model.n_steps, model.batch_size, model.n_epochs) == (3, 40, 48, 3)

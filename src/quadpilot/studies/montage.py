@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.train.cli import UsageError, _int_at_least, _Parser
+from quadpilot.console import Parser, UsageError
+from quadpilot.train.cli import int_at_least
 
 
 def pick_snapshots(snapshots: list[tuple[int, Path]], k: int) -> list[tuple[int, Path]]:
@@ -144,7 +145,7 @@ def result_text(result: dict, window_s: float) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = Parser(
         prog="python -m quadpilot.studies.montage",
         description=__doc__.split("\n\n")[0],
         epilog="\n\n".join(__doc__.split("\n\n")[1:]),
@@ -156,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     pick = p.add_mutually_exclusive_group()
     pick.add_argument(
         "--snapshots",
-        type=_int_at_least(1, 64),
+        type=int_at_least(1, 64),
         default=3,
         metavar="K",
         help="Snapshots to show, evenly spaced from the first to the last. Default: 3.",
@@ -169,12 +170,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--seed",
-        type=_int_at_least(0, 2**63 - 1),
+        type=int_at_least(0, 2**63 - 1),
         default=0,
         help="Seed of the start state every snapshot flies from. Default: 0.",
     )
     p.add_argument("--seconds", type=float, metavar="S", help="Seconds to fly. Default: the training episode (5 s).")
-    p.add_argument("--fps", type=_int_at_least(1, 120), default=20, help="Frames per second (≤ 120). Default: 20.")
+    p.add_argument("--fps", type=int_at_least(1, 120), default=20, help="Frames per second (≤ 120). Default: 20.")
     p.add_argument(
         "--size",
         default="720x320",

@@ -26,11 +26,10 @@ def _read(run: Path) -> dict:
     ev = json.loads((run / "eval.json").read_text())
     cfg = json.loads((run / "config.json").read_text())
     algo = cfg.get("algo", "ppo")
-    if algo == "sac":
-        from quadpilot.train.sac import read_metrics
-    else:
-        from quadpilot.train.runlog import read_metrics
-    m = read_metrics(run / "metrics.csv")
+    from quadpilot.train.checkpoint import ALGORITHMS
+    from quadpilot.train.runlog import read_metrics
+
+    m = read_metrics(run / "metrics.csv", ALGORITHMS[algo].columns)
     first = ev.get("first_success") or {}
     seed = (cfg.get("sac") or cfg.get("ppo") or {}).get("seed")
     return {
@@ -116,7 +115,7 @@ def plot(runs: list[dict], png: Path, title: str) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from quadpilot.train.checkpoint import atomic_write
+    from quadpilot.train.runlog import atomic_write
 
     fig = Figure(figsize=(10, 6), layout="constrained")
     FigureCanvasAgg(fig)

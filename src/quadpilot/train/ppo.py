@@ -9,13 +9,15 @@ Read against the paper:
       r_t(θ) = π_θ(a_t|s_t) / π_θold(a_t|s_t)                                 (eq. 6)
   and θ_old ← θ.
 
-Health metrics come back as a dict under fixed names (DESIGN style rule 5); the CLI decides where
-they go. approx_kl uses the (r − 1) − log r estimator (Schulman, "Approximating KL Divergence",
-2020), unbiased and never negative.
+Health metrics come back as a dict under fixed names (DESIGN style rule 5); the run loop (`run`)
+decides where they go. approx_kl uses the (r − 1) − log r estimator (Schulman, "Approximating KL
+Divergence", 2020), unbiased and never negative. What PPO shares with SAC (the episode log, the
+checkpoint layout, the files) is `trainer.Trainer`'s.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -26,7 +28,8 @@ import torch
 
 from quadpilot.core.normalize import RunningMeanStd
 
-from . import recurrent_ppo
+from . import recurrent_ppo, runlog, trainer
+from .checks import rms_state, tensor
 from .envs import EnvConfig, QuadVectorEnv
 from .gae import compute_gae
 from .history import HistoryVectorEnv, network_input_dim
@@ -166,15 +169,25 @@ PRESETS: dict[str, dict] = {
 }
 
 
-class NonFiniteError(RuntimeError):
-    """Training met NaN/Inf too often to go on without poisoning the weights."""
+NonFiniteError = trainer.NonFiniteError  # every algorithm's; named here, where PPO's docs look for it
 
 
-class PPO:
-    """The trainer: environment, actor-critic, optimiser, normaliser and RNGs.
+class PPO(trainer.Trainer):
+    """The trainer: environment, actor-critic, optimiser, normaliser and RNGs (`trainer.Trainer`
+    has what it shares with SAC: the episode log, the checkpoint layout, the files).
 
     `iterate()` runs one rollout and one update and returns the metrics dict.
     """
+
+    algo = "ppo"
+    unit = "update"
+    Config = PPOConfig
+    columns = runlog.COLUMNS
+    run_keys = (
+        *("schema", "task", "preset", "ppo", "env", "curriculum", "checkpoint_every", "snapshot_every"),
+        *("eval_episodes", "command", "started", "resumes"),
+    )
+    eval_keys = ("policy", "global_step", "updates", "train_time_s", "first_success", "time_breakdown_s")
 
     def __init__(self, cfg: PPOConfig, env_cfg: EnvConfig) -> None:
         self.cfg, self.env_cfg = cfg, env_cfg
@@ -189,9 +202,9 @@ class PPO:
                 f"bptt_steps {cfg.bptt_steps} must divide rollout_steps {cfg.rollout_steps} (0: all of it)"
             )
         self.seq_len = cfg.seq_len
-        self.env = QuadVectorEnv(cfg.num_envs, config=env_cfg)
+        env = QuadVectorEnv(cfg.num_envs, config=env_cfg)
         if cfg.obs_history > 1:
-            self.env = HistoryVectorEnv(self.env, cfg.obs_history)
+            env = HistoryVectorEnv(env, cfg.obs_history)
         self.obs_dim = obs_dim = network_input_dim(env_cfg.layout.dim, cfg)
         self.torch_gen = torch.Generator().manual_seed(cfg.seed)
         torch.manual_seed(cfg.seed)  # parameter initialisation draws from the default generator
@@ -200,28 +213,14 @@ class PPO:
         self.obs_rms = RunningMeanStd((obs_dim,))
         if self.recurrent:  # LSTM states carried from step to step and rollout to rollout
             self.rollout_state = recurrent_ppo.initial_rollout_state(self.model, cfg.num_envs)
-        self.global_step = 0
-        self.updates = 0
-        self._nonfinite_streak = 0
-        self.ep_returns: list[float] = []
-        self.ep_lengths: list[int] = []
-        self.ep_success: list[bool] = []
+        self._start(env)
         self.reseed(cfg.seed)
 
-    # --- environment ---------------------------------------------------------------------
+    # --- environment and state between iterations -----------------------------------------
     def reseed(self, seed: int) -> None:
-        raw, _ = self.env.reset(seed=seed)
-        self._obs = raw
+        super().reseed(seed)
         if self.recurrent:
             self.rollout_state = recurrent_ppo.initial_rollout_state(self.model, self.cfg.num_envs)
-
-    def _record_episodes(self, infos: dict) -> None:
-        """Returns, lengths and successes of the episodes that ended in this step."""
-        ended = infos["_final_obs"]
-        ep = infos["episode"]
-        self.ep_returns.extend(ep["r"][ended].tolist())
-        self.ep_lengths.extend(ep["l"][ended].tolist())
-        self.ep_success.extend(ep["success"][ended].tolist())
 
     def extra_state(self) -> dict:
         """Trainer state beyond the MLP's, as arrays and plain data for a checkpoint: the LSTM
@@ -232,10 +231,7 @@ class PPO:
             out["rollout_state"]["start"] = self.rollout_state["start"].copy()
         if isinstance(self.env, HistoryVectorEnv):
             out["history"] = self.env.state_dict()
-        noise = self.env.batch.noise
-        if noise is not None:
-            out["noise"] = noise.state_dict()
-        return out
+        return {**out, **super().extra_state()}
 
     def load_extra_state(self, d: dict | None) -> None:
         """Put back what `extra_state` saved (a checkpoint without it leaves things as they are)."""
@@ -248,16 +244,29 @@ class PPO:
             self.rollout_state["start"] = np.asarray(rs["start"], bool).copy()
         if "history" in d and isinstance(self.env, HistoryVectorEnv):
             self.env.load_state_dict({k: np.asarray(v) for k, v in d["history"].items()})
-        if "noise" in d:
-            from quadpilot.core.sensor_noise import SensorNoiseState
+        super().load_extra_state(d)
 
-            batch = self.env.batch
-            if batch.noise is None:
-                batch.noise = SensorNoiseState(batch.noise_spec, batch.n, self.env_cfg.dt, np.random.default_rng(0))
-            nd = d["noise"]
-            batch.noise.load_state_dict(
-                {"slow": np.asarray(nd["slow"]), "white": np.asarray(nd["white"]), "rng": nd["rng"]}
-            )
+    # --- checkpoint entries (`trainer.Trainer.state_dict`) -----------------------------------
+    def own_state(self) -> dict:
+        rms = self.obs_rms
+        return {
+            "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
+            "optimizer": copy.deepcopy(self.opt.state_dict()),
+            "obs_rms": {"mean": tensor(rms.mean), "var": tensor(rms.var), "count": rms.count, "clip": rms.clip},
+        }
+
+    def own_optimizers(self, ckpt: dict, source: str) -> dict:
+        return {"optimizer": (ckpt["optimizer"], self.opt)}
+
+    def load_own_state(self, ckpt: dict) -> None:
+        self.model.load_state_dict(ckpt["model"])
+        self.opt.load_state_dict(ckpt["optimizer"])
+
+    def load_own_numbers(self, ckpt: dict) -> None:
+        self.obs_rms.load_state_dict(rms_state(ckpt["obs_rms"]))
+
+    def plot_curves(self, metrics_path, out_path, title: str, radii: tuple[float, ...]):
+        return runlog.plot_curves(metrics_path, out_path, title, radii)
 
     def _norm(self, raw: np.ndarray) -> np.ndarray:
         return self.obs_rms.normalize(raw) if self.cfg.normalize_obs else raw.astype(np.float32)
@@ -400,16 +409,12 @@ class PPO:
             if cfg.target_kl is not None and stats["approx_kl"] and stats["approx_kl"][-1] > cfg.target_kl:
                 break
         self.updates += 1
-        if skipped or skipped_steps:
-            self._nonfinite_streak += 1
-            if self._nonfinite_streak >= cfg.max_nonfinite_updates:
-                raise NonFiniteError(
-                    f"{self._nonfinite_streak} consecutive updates met NaN/Inf (this one: {skipped} non-finite "
-                    f"transitions, {skipped_steps} skipped gradient steps); the weights were not touched by them. "
-                    "Lower the learning rate or check the environment and reward for NaN."
-                )
-        else:
-            self._nonfinite_streak = 0
+        self._count_nonfinite(
+            bool(skipped or skipped_steps),
+            f"updates met NaN/Inf (this one: {skipped} non-finite transitions, {skipped_steps} skipped gradient "
+            "steps); the weights were not touched by them. Lower the learning rate or check the environment and "
+            "reward for NaN.",
+        )
         if self.recurrent:
             y, v = batch["ret"][:, finite].reshape(-1), batch["val"][:, finite].reshape(-1)
         else:
@@ -429,9 +434,6 @@ class PPO:
         t1 = time.perf_counter()
         metrics = self.update(batch)
         t2 = time.perf_counter()
-        recent = slice(max(n_before, len(self.ep_returns) - 4 * self.cfg.num_envs), None)
-        ended_r, ended_l = self.ep_returns[recent], self.ep_lengths[recent]
-        ended_s = self.ep_success[recent]
         metrics.update(
             global_step=self.global_step,
             update=self.updates,
@@ -440,14 +442,8 @@ class PPO:
             env_s=self.last_env_s,
             inference_s=t1 - t0 - self.last_env_s,
             update_s=t2 - t1,
-            ep_return=float(np.mean(ended_r)) if ended_r else float("nan"),
-            ep_length=float(np.mean(ended_l)) if ended_l else float("nan"),
-            success_rate=float(np.mean(ended_s)) if ended_s else float("nan"),
-            episodes=len(ended_r),
+            **self._episode_metrics(n_before),
         )
-        # keep the episode lists short: only what the next report may need
-        keep = 8 * self.cfg.num_envs
-        del self.ep_returns[:-keep], self.ep_lengths[:-keep], self.ep_success[:-keep]
         return metrics
 
     @property

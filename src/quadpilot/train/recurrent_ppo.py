@@ -226,14 +226,15 @@ class DeterministicActor:
         self.lstm = bool(getattr(model, "recurrent", False))
         self.stateful = self.lstm or obs_history > 1
 
-    def _x(self, raw: np.ndarray) -> torch.Tensor:
+    def network_input(self, raw: np.ndarray) -> torch.Tensor:
+        """The network's input for raw observations: normalised as in training, float32."""
         return torch.from_numpy(np.ascontiguousarray(self.normalize(raw), np.float32))
 
     @torch.inference_mode()
     def __call__(self, raw_obs: np.ndarray) -> np.ndarray:
         if self.stateful:
             raise TypeError("a recurrent or history policy keeps state: use initial_state() and step()")
-        return self.model.mean_action(self._x(raw_obs)).numpy()
+        return self.model.mean_action(self.network_input(raw_obs)).numpy()
 
     def initial_state(self, n: int):
         if self.lstm:
@@ -245,10 +246,10 @@ class DeterministicActor:
     @torch.inference_mode()
     def step(self, raw_obs: np.ndarray, state):
         if self.lstm:
-            action, state = self.model.mean_action_step(self._x(raw_obs), state)
+            action, state = self.model.mean_action_step(self.network_input(raw_obs), state)
             return action.numpy(), state
         if self.k > 1:
-            action = self.model.mean_action(self._x(state.advance(raw_obs))).numpy()
+            action = self.model.mean_action(self.network_input(state.advance(raw_obs))).numpy()
             state.last_action = action
             return action, state
         return self(raw_obs), state

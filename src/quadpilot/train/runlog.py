@@ -1,10 +1,11 @@
-"""The files of a training run other than checkpoints: metrics.csv, JSON files, curves.png, and
-the run directory's lock.
+"""The files of a training run other than checkpoints: metrics.csv, JSON files, curves.png, the
+run directory's lock, and the atomic write every file of a run goes through (`atomic_write`:
+checkpoints, replay chunks and snapshots too).
 
-metrics.csv has a fixed header (`COLUMNS`) and one row per PPO update, appended, flushed and
-fsync'd as soon as the update ends, so a kill loses at most the row being written. A resumed run
-first cuts the file back to the checkpoint's update count (`truncate_metrics`), so every update
-number appears once.
+metrics.csv has a fixed header (`COLUMNS` for PPO; an algorithm names its own, `sac.COLUMNS`) and
+one row per iteration (a PPO update), appended, flushed and fsync'd as soon as the iteration ends, so
+a kill loses at most the row being written. A resumed run first cuts the file back to the
+checkpoint's iteration count (`truncate_metrics`), so every iteration number appears once.
 
 A run holds its directory's lock file (`LOCK`, flock(2), `lock_run_dir`) while it writes there, so
 that a second run in the same directory is refused instead of interleaving its files with the
@@ -19,11 +20,12 @@ import io
 import json
 import math
 import os
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import IO
 
 import numpy as np
-
-from .checkpoint import atomic_write
 
 COLUMNS = (
     "global_step",
@@ -55,6 +57,49 @@ COLUMNS = (
 HEADER = ",".join(COLUMNS)
 LOCK = ".lock"
 """The run directory's lock file: empty but for the pid of the run holding it."""
+
+
+# --- atomic files ---------------------------------------------------------------------------
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a rename durable: fsync the directory entry (POSIX; Windows cannot open directories)."""
+    if os.name == "nt":
+        return
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], None], keep_previous: str | None = None) -> Path:
+    """Write `path` atomically: `write(f)` into a temporary file beside it, flush, fsync,
+    optionally move the current file to `keep_previous` (a name in the same directory), then
+    `os.replace` the temporary file onto `path` and fsync the directory.
+
+    A crash leaves the old `path`, or (between the two renames) only `keep_previous`; never a torn
+    file. A leftover `.<name>.*.tmp` is harmless and may be deleted."""
+    path = Path(path)
+    directory = path.parent
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        if keep_previous is not None and path.exists():
+            os.replace(path, directory / keep_previous)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    _fsync_dir(directory)
+    return path
+
+
+# --- metrics.csv ----------------------------------------------------------------------------
 
 
 def _cell(v) -> str:
@@ -164,26 +209,35 @@ def write_json(path: str | os.PathLike, data: dict) -> Path:
     return atomic_write(path, lambda f: f.write(text.encode("utf-8")))
 
 
+PANELS = (("ep_return", "episode return"), ("ep_length", "episode length (steps)"), ("success_rate", "success"))
+"""curves.png's panels by default (PPO's): (column, axis label[, log scale[, (column, label) on a second axis]])."""
+
+
 def plot_curves(
-    metrics_path: str | os.PathLike, out_path: str | os.PathLike, title: str = "", radii: tuple[float, ...] = ()
+    metrics_path: str | os.PathLike,
+    out_path: str | os.PathLike,
+    title: str = "",
+    radii: tuple[float, ...] = (),
+    columns: tuple[str, ...] = COLUMNS,
+    panels: tuple = PANELS,
 ) -> Path:
-    """curves.png: episode return, episode length and success rate against environment steps,
-    and the curriculum stage where there is one (`radii`: the radius of each stage, for the
-    axis labels). Uses the Agg canvas directly (no pyplot, no
-    global backend switch)."""
+    """curves.png: the `panels` of metrics.csv (header `columns`) against environment steps, the
+    success panel with the deterministic evaluations (--eval-every) on the same axes, and the
+    curriculum stage where there is one (`radii`: the radius of each stage, for the axis labels).
+    Uses the Agg canvas directly (no pyplot, no global backend switch)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    m = read_metrics(metrics_path)
+    m = read_metrics(metrics_path, columns)
     x = m["global_step"]
-    has_stage = bool(np.isfinite(m["curriculum_stage"]).any())
-    panels = [("ep_return", "episode return"), ("ep_length", "episode length (steps)"), ("success_rate", "success")]
-    if has_stage:
+    panels = list(panels)
+    if np.isfinite(m["curriculum_stage"]).any():
         panels.append(("curriculum_stage", "curriculum stage"))
     fig = Figure(figsize=(8, 2.2 * len(panels)), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
-    for ax, (key, label) in zip(axes, panels, strict=True):
+    for ax, (key, label, *more) in zip(axes, panels, strict=True):
+        log, twin = (*more, False, None)[:2]
         if key == "curriculum_stage":
             ax.step(x, m[key], where="post", color="C3")
             seen = {
@@ -193,16 +247,19 @@ def plot_curves(
             ax.set_yticks(sorted(labels), [f"{s} ({labels[s]:g} m)" for s in sorted(labels)])
             ax.set_ylim(-0.3, max(labels) + 0.3)
         else:
-            ax.plot(x, m[key], lw=1.2)
+            (ax.semilogy if log else ax.plot)(x, m[key], lw=1.2)
         if key == "success_rate":
             ax.set_ylim(-0.02, 1.02)
             ev = np.isfinite(m["eval_success_rate"])
-            if ev.any():  # the deterministic evaluations (--eval-every) on the same axes
-                ax.plot(
-                    x[ev], m["eval_success_rate"][ev], "o-", ms=3, lw=1, color="C2", label="evaluation (mean action)"
-                )
+            if ev.any():
+                ev_label = "deterministic evaluation"
+                ax.plot(x[ev], m["eval_success_rate"][ev], "o-", ms=3, lw=1, color="C2", label=ev_label)
                 ax.lines[0].set_label("training episodes")
                 ax.legend(loc="lower right", fontsize=8)
+        if twin:
+            ax2 = ax.twinx()
+            ax2.plot(x, m[twin[0]], lw=1, color="C1")
+            ax2.set_ylabel(twin[1], color="C1")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("environment steps")

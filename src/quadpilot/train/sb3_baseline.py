@@ -8,11 +8,12 @@ adapter to SB3's VecEnv API that reports time-limit truncations the way SB3 read
 (`infos[i]["TimeLimit.truncated"]` and `infos[i]["terminal_observation"]`), so SB3 bootstraps on
 truncation as ours does (SB3 ≥ 2.0, `OnPolicyAlgorithm.collect_rollouts`, stable-baselines3 GitHub issue #633).
 
-`sb3_settings(cfg)` maps every `PPOConfig` field to SB3 (`FIELD_MAP` says how, or why it cannot be
-matched exactly; a test fails when PPOConfig gains a field that is not in it). SB3's algorithm runs
-unmodified: `_TimedPPO` only times `collect_rollouts` and `train` and hands each update's logged
-values to our metrics.csv. The trained policy is judged by our `evaluate` (same episodes, same
-success definition), through `deterministic_policy`. Files are tensors and NumPy/JSON only:
+`sb3_settings(cfg)` maps every `PPOConfig` field to SB3
+(`quadpilot.studies.matched_settings.FIELD_MAP` says how, or why it cannot be matched exactly; a
+test fails when PPOConfig gains a field that is not in it). SB3's algorithm runs unmodified:
+`_TimedPPO` only times `collect_rollouts` and `train` and hands each update's logged values to our
+metrics.csv. The trained policy is judged by our `evaluate` (same episodes, same success
+definition), through `deterministic_policy`. Files are tensors and NumPy/JSON only:
 `sb3_policy.pt` (the policy's state_dict, loads with `weights_only=True`) and `obs_norm.npz`
 (VecNormalize's statistics, loads with `allow_pickle=False`); SB3's own `save` and VecNormalize's
 `save` pickle, so they are not used.
@@ -24,6 +25,7 @@ import dataclasses
 import io
 import math
 import time
+import types
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -36,123 +38,14 @@ from stable_baselines3 import PPO as SB3PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
-from .checkpoint import atomic_write
 from .envs import EnvConfig, QuadVectorEnv
 from .ppo import PPOConfig
+from .runlog import atomic_write
 
 POLICY_FILE = "sb3_policy.pt"
 OBS_NORM_FILE = "obs_norm.npz"
 ENV_IDS = {"hover": "quadpilot/Hover-v0", "waypoint": "quadpilot/Waypoint-v0", "circle": "quadpilot/Circle-v0"}
 ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU, "elu": torch.nn.ELU}
-
-# Every PPOConfig field: (where it goes in `sb3_settings(cfg)`, or None; how it maps or how it differs).
-# Keys in the first element are paths into the settings dict ("ppo.n_steps").
-FIELD_MAP: dict[str, tuple[str | None, str]] = {
-    "num_envs": ("n_envs", "same vector env, as many drones"),
-    "rollout_steps": ("ppo.n_steps", ""),
-    "total_steps": ("total_timesteps", "both round up to whole rollouts"),
-    "epochs": ("ppo.n_epochs", ""),
-    "minibatch_size": (
-        "ppo.batch_size",
-        "when the rollout is not a multiple of it, SB3 adds a shorter last minibatch each epoch; ours "
-        "drops the remainder (a different random one each epoch)",
-    ),
-    "lr": ("learning_rate.initial", "Adam, eps 1e-5 in both"),
-    "lr_schedule": (
-        "learning_rate.schedule",
-        "SB3 evaluates its schedule after the rollout (progress 1 − k/K at update k); `MatchedLR` shifts it "
-        "by one update so update k uses lr·(1 − (k−1)/K) in both",
-    ),
-    "gamma": ("ppo.gamma", ""),
-    "lam": ("ppo.gae_lambda", ""),
-    "clip_eps": ("ppo.clip_range", ""),
-    "clip_value": ("ppo.clip_range_vf", "clip_eps when clip_value, else None (no value clipping)"),
-    "vf_coef": (
-        "ppo.vf_coef",
-        "halved: SB3's value loss is the MSE, ours ½·MSE (PPO paper eq. 9 with the ½ of a squared error); "
-        "the gradients are then identical. metrics.csv logs ½·SB3's value_loss so the column means one thing",
-    ),
-    "ent_coef": ("ppo.ent_coef", "entropy of the diagonal Gaussian summed over actions in both"),
-    "max_grad_norm": ("ppo.max_grad_norm", "global norm over all parameters, log-std included, in both"),
-    "target_kl": (
-        "ppo.target_kl",
-        "not exact: SB3 stops when a minibatch's approx_kl > 1.5·target_kl, before that step; ours after an "
-        "epoch whose last minibatch exceeded target_kl. Passed as target_kl/1.5 so the thresholds agree "
-        "(None in every preset)",
-    ),
-    "arch": ("policy", "mlp → MlpPolicy (ActorCriticPolicy); the comparison matches the MLP only"),
-    "lstm_hidden": (None, "unused by an MLP policy"),
-    "bptt_steps": (None, "unused by an MLP policy"),
-    "obs_history": (None, "1 (the plain observation) only: SB3 would need a frame-stacking wrapper"),
-    "actor_hidden": ("policy_kwargs.net_arch.pi", "separate actor and critic networks in both"),
-    "critic_hidden": ("policy_kwargs.net_arch.vf", ""),
-    "activation": ("policy_kwargs.activation_fn", ""),
-    "init_log_std": (
-        "policy_kwargs.log_std_init",
-        "state-independent learned log-std in both; orthogonal init with gains √2 (hidden), 0.01 (policy "
-        "output), 1 (value output) and zero biases in both (ortho_init)",
-    ),
-    "reward_scale": (
-        "reward_scale",
-        "our `ScaleReward` VecEnv wrapper multiplies rewards by it; VecNormalize's norm_reward (division by "
-        "a running std of the discounted return) is a different thing, so it stays off",
-    ),
-    "normalize_obs": (
-        "vec_normalize.norm_obs",
-        "VecNormalize(norm_obs, clip_obs=10, epsilon=1e-8), the same formula and clip as ours, but SB3 "
-        "updates its statistics every step while ours updates them between rollouts; off in both presets "
-        "(no VecNormalize at all then)",
-    ),
-    "normalize_adv": ("ppo.normalize_advantage", "per minibatch, (A − mean)/(std + 1e-8), in both"),
-    "max_nonfinite_updates": (
-        None,
-        "no equivalent: SB3 does not skip non-finite data or gradients (a NaN would reach the weights)",
-    ),
-    "seed": (
-        "seed",
-        "SB3 seeds Python, NumPy, torch and the env (reset seed); the random streams differ from ours, so "
-        "seed s of one is not seed s of the other",
-    ),
-    "threads": ("threads", "torch.set_num_threads in both"),
-}
-
-# Settings that are not PPOConfig fields but decide what the two compute.
-IMPLICIT_ROWS: tuple[tuple[str, str, str], ...] = (
-    (
-        "truncation (time limit) bootstrapping",
-        "next value = V(final observation) for truncated steps; GAE chain cut at every episode end",
-        "adds γ·V(terminal_observation) to the reward when infos['TimeLimit.truncated'] (SB3 2.9: "
-        "collect_rollouts, one forward call per ended drone); the same advantages",
-    ),
-    (
-        "action clipping",
-        "sampled action stored unclipped; clipped to [−1, 1] for the env",
-        "the same (np.clip to the action space)",
-    ),
-    (
-        "rollout / update split",
-        "collect (with GAE) then update; advantages float64",
-        "collect_rollouts (with GAE) then train; buffer float32",
-    ),
-    (
-        "approx_kl, clip_fraction (logged)",
-        "(r − 1) − log r, mean over all minibatches of the update",
-        "the same estimator, mean over the last epoch's minibatches",
-    ),
-    ("grad_norm (logged)", "before clipping, mean over the update", "not logged by SB3 (blank)"),
-    (
-        "checkpoints",
-        "checkpoint.pt every update (included in training time)",
-        "none during training; policy and statistics written at the end",
-    ),
-)
-
-
-def _get(d: dict, path: str):
-    for k in path.split("."):
-        d = d[k]
-    return d
-
 
 # --- the matched settings -------------------------------------------------------------------
 
@@ -213,19 +106,6 @@ def sb3_settings(cfg: PPOConfig) -> dict[str, Any]:
             "ortho_init": True,
         },
     }
-
-
-def settings_rows(cfg: PPOConfig) -> list[tuple[str, str, str]]:
-    """(our field = value, SB3 parameter = value, note) for every PPOConfig field: the table of
-    docs/comparison.md."""
-    s = sb3_settings(cfg)
-    rows = []
-    for f in dataclasses.fields(PPOConfig):
-        path, note = FIELD_MAP[f.name]
-        ours = f"{f.name} = {getattr(cfg, f.name)!r}"
-        theirs = "—" if path is None else f"{path.split('.')[-1]} = {_get(s, path)!r}"
-        rows.append((ours, theirs, note))
-    return rows
 
 
 def _policy_kwargs(s: dict) -> dict:
@@ -470,7 +350,7 @@ def build_model(s: dict, venv: VecEnv) -> _TimedPPO:
         s["total_timesteps"],
         s["n_envs"] * s["ppo"]["n_steps"],
     )
-    with warnings.catch_warnings():  # SB3's note on a last, shorter minibatch: FIELD_MAP["minibatch_size"]
+    with warnings.catch_warnings():  # SB3's note on a last, shorter minibatch (matched_settings.FIELD_MAP)
         warnings.filterwarnings("ignore", message="You have specified a mini-batch size")
         return _TimedPPO(
             s["policy"],
@@ -498,12 +378,12 @@ def _versions() -> dict[str, str]:
 def train_from_cli(args, argv: list[str]) -> int:
     """`quad-train --algo sb3 ...`: the same options, run directory files and evaluation as our
     PPO, with SB3 doing the learning. No resume (SB3 checkpoints pickle)."""
-    from .cli import PPO_OPTIONS, SUCCESS_BAR, SUCCESS_KEY, UsageError, _command, _now, _Progress, _Stop
-    from .cli import _time_breakdown as time_breakdown
+    from quadpilot.console import UsageError
+
+    from . import options, runlog
     from .envs import make_config
-    from .evaluate import evaluate
-    from .ppo import PRESETS
-    from .runlog import MetricsLog, plot_curves, write_json
+    from .ppo import PPO
+    from .run import Progress, Stop, command, evaluate_and_advance, final_evaluation, now, time_breakdown
 
     if args.resume:
         raise UsageError("--resume is not available with --algo sb3 (its runs write no resumable checkpoint)")
@@ -511,14 +391,12 @@ def train_from_cli(args, argv: list[str]) -> int:
         raise UsageError("--checkpoint-every does not apply to --algo sb3 (its runs write no resumable checkpoint)")
     if args.task == "waypoint":
         raise UsageError("--algo sb3 trains hover and circle; waypoint's curriculum is not wired to SB3")
-    explicit = {k: getattr(args, k) for k in PPO_OPTIONS if getattr(args, k) is not None}
     preset = args.preset or "fast"
-    cfg = PPOConfig(**{**PRESETS[preset], **explicit})
+    cfg = options.make_config(PPO, options.explicit_options(args, PPO), preset)
     out = Path(args.out or f"runs/{args.task}-sb3-seed{cfg.seed}")
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UsageError(f"{out} exists and is not empty; choose another --out")
-    env_kw = {"vehicle": args.vehicle} if args.vehicle else {}
-    env_cfg = make_config(args.task, **env_kw)
+    env_cfg = make_config(args.task, **options.env_kwargs(args))
     try:
         s = sb3_settings(cfg)
     except ValueError as e:
@@ -531,7 +409,7 @@ def train_from_cli(args, argv: list[str]) -> int:
         return ObsNorm.from_vec_normalize(norm) if norm is not None else ObsNorm.identity(obs_dim)
 
     out.mkdir(parents=True, exist_ok=True)
-    write_json(
+    runlog.write_json(
         out / "config.json",
         {
             "schema": "quadpilot.run/1",
@@ -543,8 +421,8 @@ def train_from_cli(args, argv: list[str]) -> int:
             "env": env_cfg.to_json(),
             "eval_episodes": args.eval_episodes,
             "eval_every": args.eval_every,
-            "command": _command(argv),
-            "started": _now(),
+            "command": command(argv),
+            "started": now(),
             "versions": _versions(),
         },
     )
@@ -556,9 +434,10 @@ def train_from_cli(args, argv: list[str]) -> int:
     def train_time() -> float:
         return time.perf_counter() - t0 - state["eval_s"]
 
-    log = MetricsLog(out / "metrics.csv")
-    progress = _Progress(f"quad-train {args.task} (sb3)", 0, num_updates * batch)
-    stop = _Stop()
+    log = runlog.MetricsLog(out / "metrics.csv")
+    progress = Progress(f"quad-train {args.task} (sb3)", 0, num_updates * batch)
+    stop = Stop()
+    view = types.SimpleNamespace(env_cfg=env_cfg)  # what the run loop's evaluation reads of a trainer
 
     def after_update(model: _TimedPPO) -> None:
         state["updates"] += 1
@@ -588,20 +467,10 @@ def train_from_cli(args, argv: list[str]) -> int:
             "success_rate": float(np.mean([e[2] for e in recent])) if recent else float("nan"),
             "episodes": len(recent),
         }
-        if args.eval_every and state["updates"] % args.eval_every == 0:
-            te = time.perf_counter()
-            r = evaluate(deterministic_policy(model.policy, obs_norm()), env_cfg, episodes=args.eval_episodes or 100)
-            state["eval_s"] += time.perf_counter() - te
-            m["eval_success_rate"] = r[SUCCESS_KEY.get(args.task, "success_rate")]
-            m["eval_error_m"] = r["mean_error_last_window_m"]
-            if state["first_success"] is None and m["eval_success_rate"] >= SUCCESS_BAR:
-                state["first_success"] = {
-                    "global_step": model.num_timesteps,
-                    "update": state["updates"],
-                    "train_time_s": m["time_s"],
-                    "success_rate": m["eval_success_rate"],
-                    "episodes": r["episodes"],
-                }
+        view.updates, view.global_step = state["updates"], model.num_timesteps
+        view.act_deterministic = deterministic_policy(model.policy, obs_norm())
+        state["first_success"], dt = evaluate_and_advance(view, args, None, m, state["first_success"])
+        state["eval_s"] += dt
         log.write(m)
         state["last"] = m
         progress.update(m)
@@ -621,13 +490,12 @@ def train_from_cli(args, argv: list[str]) -> int:
     train_s = train_time()
     atomic_write(out / POLICY_FILE, lambda f: torch.save(model.policy.state_dict(), f))
     obs_norm().save(out / OBS_NORM_FILE)
-    plot_curves(out / "metrics.csv", out / "curves.png", f"{args.task} (SB3 PPO), {out.name}")
+    runlog.plot_curves(out / "metrics.csv", out / "curves.png", f"{args.task} (SB3 PPO), {out.name}")
     if stop.signal is not None and state["updates"] < num_updates:
         print(f"quad-train: stopped by {stop.signal} after update {state['updates']}/{num_updates}", flush=True)
         return 130
     summary = f"quad-train: done (sb3), {model.num_timesteps:,} steps in {state['updates']} updates; policy in {out}"
     if args.eval_episodes:
-        result = evaluate(deterministic_policy(model.policy, obs_norm()), env_cfg, episodes=args.eval_episodes)
         meta = {
             "algo": "sb3",
             "policy": POLICY_FILE,
@@ -636,9 +504,9 @@ def train_from_cli(args, argv: list[str]) -> int:
             "updates": state["updates"],
             "train_time_s": train_s,
             "first_success": state["first_success"],
-            "time_breakdown_s": time_breakdown(out / "metrics.csv"),
+            "time_breakdown_s": time_breakdown(out / "metrics.csv", runlog.COLUMNS),
         }
-        write_json(out / "eval.json", {**meta, **result})
-        summary += f"; evaluation: success {result['success_rate']:.0%} over {args.eval_episodes} episodes"
+        view.act_deterministic = deterministic_policy(model.policy, obs_norm())
+        summary += final_evaluation(view, args, None, out, lambda: meta)
     print(summary, flush=True)
     return 0
