@@ -231,6 +231,13 @@ def _add_sensor_options(p: argparse.ArgumentParser) -> None:
         help="First-order motor time constant in seconds (e.g. 0.03), replacing the vehicle preset's (0). "
         "Default: the preset's.",
     )
+    p.add_argument(
+        "--init-rotor",
+        choices=("hover", "rest", "random"),  # train.envs.INIT_ROTOR (not imported: --help stays torch-free)
+        help="Rotor speeds at the start of an episode: hover (at the hover command), rest (stopped, as a "
+        "drone whose motors were just armed; with a motor lag the policy must spin them up) or random "
+        "(uniform between the two, per rotor). Default: hover.",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

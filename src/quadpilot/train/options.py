@@ -161,6 +161,8 @@ def env_kwargs(args) -> dict:
     if args.motor_tau is not None:
         check_motor_tau(args)
         kw["vehicle"] = dataclasses.replace(_vehicle(args), motor_tau=args.motor_tau)
+    if getattr(args, "init_rotor", None):
+        kw["init_rotor"] = args.init_rotor
     return kw
 
 
@@ -197,4 +199,6 @@ def clashes(args, explicit: dict, stored_cfg, extra: dict, env_config: dict) -> 
             out.append(f"--sensor-noise {want} (checkpoint: {name or 'off'})")
     if args.motor_tau is not None and args.motor_tau != stored.get("motor_tau"):
         out.append(f"--motor-tau {args.motor_tau} (checkpoint: {stored.get('motor_tau')})")
+    if getattr(args, "init_rotor", None) and args.init_rotor != env_config.get("init_rotor", "hover"):
+        out.append(f"--init-rotor {args.init_rotor} (checkpoint: {env_config.get('init_rotor', 'hover')})")
     return out
