@@ -1,12 +1,18 @@
-"""Markdown table of drone-steps per second from one run of benchmarks/test_env_speed.py.
+"""Markdown table of drone-steps per second from one run of benchmarks/test_env_speed.py (or, with
+--randomized, of benchmarks/test_env_speed_randomized.py).
 
-    .venv/bin/python benchmarks/report.py /tmp/bench.json [--stat min|median|mean]
+    .venv/bin/python benchmarks/report.py docs/bench/env_speed.json [--stat min|median|mean] [--strip-data]
+    .venv/bin/python benchmarks/report.py docs/bench/env_speed_randomized.json --randomized [--strip-data]
 
 Reads a pytest-benchmark JSON (`--benchmark-json=FILE`) and prints, per N: the raw dynamics step
 (float32, float64) and the vector env in M drone-steps/s, and their speed per drone-step relative to
 the single-environment loop of the same file, so every ratio comes from one run. Throughput is
 n·steps_per_round / round time, the round time being the chosen statistic (default: the fastest
 round, the least disturbed by other load on the machine).
+
+--randomized: per N, the vector env without randomisation and with each preset (median round: rounds
+differ in how many drones reset), in M drone-steps/s and as a fraction of the unrandomised env.
+--strip-data rewrites the JSON without pytest-benchmark's per-round times, small enough for docs/.
 """
 
 from __future__ import annotations
@@ -55,7 +61,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("json", type=Path, help="file written by pytest --benchmark-json")
     ap.add_argument("--stat", choices=("min", "median", "mean"), default="min", help="round-time statistic")
+    ap.add_argument("--randomized", action="store_true", help="the table of test_env_speed_randomized.py")
+    ap.add_argument("--strip-data", action="store_true", help="rewrite the JSON without the per-round times")
     args = ap.parse_args(argv)
+    if args.strip_data:
+        data = json.loads(args.json.read_text())
+        for b in data.get("benchmarks", []):
+            b.get("stats", {}).pop("data", None)
+        args.json.write_text(json.dumps(data, indent=1) + "\n")
+    if args.randomized:
+        return randomized(args.json)
     res = load(args.json, args.stat)
 
     def rate(kind: str, n: int, dtype: str | None = None) -> float | None:
@@ -114,6 +129,32 @@ def main(argv: list[str] | None = None) -> int:
     for label, value, bar in checks:
         verdict = "not measured" if value is None else ("met" if value >= bar else "NOT met")
         print(f"- Target {label}: {verdict}")
+    return 0
+
+
+def randomized(path: Path) -> int:
+    """The domain-randomisation cost table: median-round M drone-steps/s per N and preset."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise SystemExit(f"cannot read pytest-benchmark JSON {path}: {e}") from None
+    rate = {}
+    for b in data.get("benchmarks", []):
+        info = b.get("extra_info", {})
+        if str(info.get("kind", "")).startswith("dr:") and "drone_steps_per_s_median" in info:
+            rate[(info["kind"][3:], int(info["n"]))] = info["drone_steps_per_s_median"]
+    if not rate:
+        raise SystemExit(f"{path} holds no benchmark of benchmarks/test_env_speed_randomized.py")
+    modes = ("None", "params", "default", "pushes")
+    print("| N | off (M drone-steps/s) | `params` | `default` | `pushes` |")
+    print("|---:|---:|---:|---:|---:|")
+    for n in sorted({n for _, n in rate}):
+        off = rate.get(("None", n))
+        cells = [fmt_rate(off)]
+        for m in modes[1:]:
+            r = rate.get((m, n))
+            cells.append("–" if r is None else f"{fmt_rate(r)}" + (f" ({r / off:.2f}×)" if off else ""))
+        print(f"| {n} | " + " | ".join(cells) + " |")
     return 0
 
 

@@ -74,6 +74,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("json", type=Path, help="file written by pytest --benchmark-json")
     ap.add_argument("--strip-data", action="store_true", help="rewrite the JSON without the per-round times")
+    ap.add_argument(
+        "--table",
+        choices=TABLES,
+        help="print only this part (as quoted in docs/benchmarks.md): latency, targets, c (where a c-backend "
+        "step's time goes) or m4 (the Cortex-M4F estimate). Default: everything, with the machine.",
+    )
     args = ap.parse_args(argv)
     res, machine = load(args.json)
     if args.strip_data:
@@ -81,9 +87,21 @@ def main(argv: list[str] | None = None) -> int:
         for b in data.get("benchmarks", []):
             b.get("stats", {}).pop("data", None)
         args.json.write_text(json.dumps(data, indent=1) + "\n")
-    cpu = machine.get("cpu", {}).get("brand_raw", platform.processor() or "?")
-    print(f"Machine: {cpu}, {machine.get('cpu', {}).get('count', '?')} cores; Python {machine.get('python_version')}.")
-    print()
+    if args.table is None:
+        cpu = machine.get("cpu", {}).get("brand_raw", platform.processor() or "?")
+        print(
+            f"Machine: {cpu}, {machine.get('cpu', {}).get('count', '?')} cores; Python {machine.get('python_version')}."
+        )
+        print()
+        for part in TABLES:
+            PARTS[part](res)
+            print()
+    else:
+        PARTS[args.table](res)
+    return 0
+
+
+def _latency(res: dict) -> None:
     print("| network | case | p50 (µs) | p99 (µs) | torch eager p50 ÷ this p50 |")
     print("|---|---|---:|---:|---:|")
     for net in ("mlp", "lstm"):
@@ -95,7 +113,9 @@ def main(argv: list[str] | None = None) -> int:
             ratio = "–" if base is None else f"{base / r['p50_us']:.1f}×"
             p99 = f"{r['p99_us']:.2f}" if "p99_us" in r else "–"
             print(f"| {net} | {LABEL[case]} | {r['p50_us']:.2f} | {p99} | {ratio} |")
-    print()
+
+
+def _targets(res: dict) -> None:
     monitored = [res[("mlp", c)] for c in ("monitored_numpy", "monitored_onnxruntime") if ("mlp", c) in res]
     if monitored:
         best = min(monitored, key=lambda r: r["p50_us"])
@@ -115,15 +135,25 @@ def main(argv: list[str] | None = None) -> int:
             )
         for label, ok, value in checks:
             print(f"- Target {label}: {'met' if ok else 'NOT met'} ({value})")
-    _report_c(res)
-    return 0
+    mlp = res.get(("mlp", "kernel_loop_expf"))
+    if mlp is not None:
+        us = mlp["p50_us"]
+        print(
+            f"- Target MLP kernel ≤ {C_KERNEL_US:g} µs (loop in C): {'met' if us <= C_KERNEL_US else 'NOT met'} "
+            f"({us * 1e3:.0f} ns; min of {mlp['repeats']} repeats {mlp['min_us'] * 1e3:.0f} ns)"
+        )
+        print(f"- Built with: {_compile_flags(mlp.get('compile', '?'))}")
+
+
+def _compile_flags(cmd: str) -> str:
+    """The compiler flags of the timing build, without its temporary paths."""
+    return " ".join(w for w in cmd.split() if w.startswith("-") and w != "-o")
 
 
 def _report_c(res: dict) -> None:
-    """The C kernel's figures: own latency, ctypes overhead, what the backend and monitor add, M4F."""
+    """The C kernel's figures: own latency, ctypes overhead, what the backend and monitor add."""
     if not any(case == "kernel_loop_expf" for _, case in res):
         return
-    print()
     print(
         "| network | C kernel, loop in C (ns) | through ctypes (ns) | ctypes overhead (ns) | "
         "+ `Policy.act` (ns) | + safety monitor (ns) |"
@@ -147,9 +177,12 @@ def _report_c(res: dict) -> None:
                 cells.append(f"{t - kernel:.0f}")
             prev = t
         print(f"| {net} | " + " | ".join(cells) + " |")
-    print()
-    print("Cortex-M4F estimate (operation count × cycles per operation, `cgen.CORTEX_M4_CYCLES`):")
-    print()
+
+
+def _report_m4(res: dict) -> None:
+    """The Cortex-M4F estimate from the operation count (not a measurement on hardware)."""
+    if not any(case == "kernel_loop_expf" for _, case in res):
+        return
     print("| network | MACs | tanh | expf (σ) | div | sqrt | weights (KiB) | cycles | µs at 168 MHz |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for net in ("mlp", "lstm"):
@@ -162,15 +195,10 @@ def _report_c(res: dict) -> None:
             f"{4 * ops['weights'] / 1024:.1f} | {m4['cycles_low']:,.0f}–{m4['cycles_high']:,.0f} | "
             f"{m4['us_low']:.0f}–{m4['us_high']:.0f} |"
         )
-    print()
-    mlp = res.get(("mlp", "kernel_loop_expf"))
-    if mlp is not None:
-        us = mlp["p50_us"]
-        print(
-            f"- Target MLP kernel ≤ {C_KERNEL_US:g} µs (loop in C): {'met' if us <= C_KERNEL_US else 'NOT met'} "
-            f"({us * 1e3:.0f} ns; min of {mlp['repeats']} repeats {mlp['min_us'] * 1e3:.0f} ns)"
-        )
-        print(f"- Built with: {mlp.get('compile', '?')}")
+
+
+TABLES = ("latency", "targets", "c", "m4")
+PARTS = {"latency": _latency, "targets": _targets, "c": _report_c, "m4": _report_m4}
 
 
 if __name__ == "__main__":

@@ -31,11 +31,13 @@ def compute_gae(
     shapes = {a.shape for a in (rewards, values, next_values, terminated, truncated)}
     if len(shapes) != 1 or rewards.ndim != 2:
         raise ValueError(f"all inputs must share one (T, N) shape, got {sorted(shapes)}")
-    not_term = 1.0 - terminated.astype(np.float64)
-    not_done = 1.0 - (terminated | truncated).astype(np.float64)
+    # The masks are float64 (Python floats in np.where), so deltas, and with them the advantages
+    # and returns, are float64 for float32 or float64 rewards and values.
+    not_term = np.where(terminated, 0.0, 1.0)
+    not_done = np.where(terminated | truncated, 0.0, 1.0)
     deltas = rewards + gamma * not_term * next_values - values
-    adv = np.zeros(rewards.shape, np.float64)
-    last = np.zeros(rewards.shape[1], np.float64)
+    adv = np.empty_like(deltas)  # every row is written below
+    last = 0.0  # Â_T = 0: nothing after the rollout's last step
     for t in range(rewards.shape[0] - 1, -1, -1):
         last = deltas[t] + gamma * lam * not_done[t] * last
         adv[t] = last

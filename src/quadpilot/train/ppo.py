@@ -185,7 +185,7 @@ class PPO(trainer.Trainer):
     columns = runlog.COLUMNS
     run_keys = (
         *("schema", "task", "preset", "ppo", "env", "curriculum", "checkpoint_every", "snapshot_every"),
-        *("eval_episodes", "command", "started", "resumes"),
+        *("eval_episodes", "command", "started", "resumes", "machine"),
     )
     eval_keys = ("policy", "global_step", "updates", "train_time_s", "first_success", "time_breakdown_s")
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import platform
 import shlex
 import signal
 import sys
@@ -56,6 +57,19 @@ RUN_FILES = (
     *("config.json", "metrics.csv", "checkpoint.pt", "checkpoint.prev.pt", "policy.pt", "eval.json", "curves.png"),
 )
 SIGNALS = ("SIGINT", "SIGTERM")
+
+
+def machine() -> dict:
+    """What bit-identical retraining depends on besides the code and the command: the CPU (torch's
+    BLAS and vectorised kernels pick their instructions from it), the thread count is in the
+    command, and the numerical libraries' versions."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    return {"cpu": cpu, "torch": torch.__version__, "numpy": np.__version__}
 
 
 def command(argv: list[str]) -> str:
@@ -293,6 +307,7 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
         "started": now(),
         "resumes": [],
         "versions": {"torch": torch.__version__, "numpy": np.__version__, "python": sys.version.split()[0]},
+        "machine": machine(),
     }
     write_json(out / "config.json", {k: values[k] for k in algo.run_keys})
     MetricsLog(out / "metrics.csv", algo.columns).close()  # the header, so the file exists from the start

@@ -327,7 +327,7 @@ class SAC(trainer.Trainer):
     columns = COLUMNS
     run_keys = (
         *("schema", "algo", "task", "sac", "update_to_data", "env", "curriculum", "checkpoint_every"),
-        *("snapshot_every", "eval_episodes", "eval_every", "command", "started", "resumes", "versions"),
+        *("snapshot_every", "eval_episodes", "eval_every", "command", "started", "resumes", "versions", "machine"),
     )
     eval_keys = (
         *("algo", "policy", "global_step", "updates", "grad_steps", "train_time_s", "first_success"),
