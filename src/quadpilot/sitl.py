@@ -6,8 +6,14 @@ a summary: success rate, position errors, crashes, steps/s, control-loop latency
 dropped packets. With no policy it flies the shipped hover model.
 
 Each side also runs alone: `quad-sitl --sim-only [--listen tcp:127.0.0.1:4560]` serves the
-simulator until stopped; `quad-sitl POLICY.onnx --node-only --connect tcp:127.0.0.1:4560` flies a
-simulator that listens there.
+simulator until stopped; `quad-sitl POLICY.onnx --node-only --connect tcp:HOST:PORT [--home
+LAT,LON,ALT] [--target E,N,U] [--duration S] [--trace OUT.csv] [--json OUT]` flies one flight against
+any simulator that speaks PX4's Simulator MAVLink API and listens there (ours, RotorPy's
+PX4Multirotor, ...): see `quadpilot.sitl_node`.
+
+`--start landed --realtime [--gcs udp:HOST:PORT]`: the vehicle starts on the ground, disarmed, and the
+node answers the ground station there as a PX4 vehicle (`runtime.commander`); one episode, which ends
+after the vehicle has flown, landed and been disarmed (`--duration` caps it: 600 s by default).
 
 The simulator flies the policy's own vehicle (the parameter set in its ONNX metadata, trained with
 quad-train --vehicle); --vehicle NAME|FILE.toml flies another, with a warning when it differs.
@@ -34,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+import quadpilot.sitl_node as sitl_node
 from quadpilot.console import Parser, UsageError, check_output_path
 from quadpilot.console import int_in as _int_in
 
@@ -64,6 +71,7 @@ SIM_FLAGS = {
     "--imu-noise": None,
     "--estimator-noise": None,
     "--vehicle": "NAME|FILE.toml",
+    "--start": "air|landed",
 }
 
 
@@ -111,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("policy", nargs="?", type=Path, help=f"ONNX file from quad-export. Default: {SHIPPED_HOVER}")
     p.add_argument(
-        "--episodes", type=_int_in(1, MAX_EPISODES), default=10, metavar="N", help="Episodes to fly. Default: 10"
+        "--episodes", type=_int_in(1, MAX_EPISODES), metavar="N", help="Default: 10 (--node-only, --start landed: 1)"
     )
     p.add_argument("--task", choices=("hover", "waypoint", "circle"), help="What to fly. Default: the policy's task.")
     p.add_argument(
@@ -119,7 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=_seconds,
         default=None,
         metavar="S",
-        help="Seconds per episode. Default: 5 (circle: two laps, 12.6 s; success is judged on the second)",
+        help="Seconds per episode (of simulated time). Default: 5 (circle: two laps, 12.6 s; success is judged "
+        "on the second; --start landed: a cap of 600 s on a flight that ends when landed and disarmed)",
     )
     p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="Seed of the start states. Default: 0")
     p.add_argument("--backend", choices=("onnxruntime", "numpy", "c"), default="numpy", help="Default: numpy")
@@ -161,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
         default="udp:127.0.0.1:14550",
         metavar="ADDR",
         help="Ground-station telemetry destination (QGroundControl/MAVProxy listen on UDP 14550); 'none': off. "
-        "Default: udp:127.0.0.1:14550",
+        "With --start landed the node also answers the ground station's commands there, as a PX4 vehicle "
+        "(arm, take off, go to, missions, land). Default: udp:127.0.0.1:14550",
     )
     p.add_argument(
         "--key",
@@ -169,6 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="MAVLink 2 signing key (32 raw bytes or 64 hex digits) for the simulator link, both sides.",
     )
+    sitl_node.add_arguments(p)
     sim = p.add_argument_group("simulator (passed on to the simulator process; see quad-sitl --sim-only --help)")
     for flag, metavar in SIM_FLAGS.items():
         if metavar is None:
@@ -281,61 +292,6 @@ def _start_simulator(cmd: list[str], timeout_s: float = 30.0):
     return (sim.proc, what) if ok else (None, what)
 
 
-def summarise(logs, period: float, task: str = "hover") -> dict:
-    from quadpilot.runtime.node import episode_summary
-
-    eps = [episode_summary(log, period, task) for log in logs]
-    lat = np.concatenate([np.asarray(log.latency_s) for log in logs]) * 1e6 if logs else np.zeros(0)
-    steps = sum(log.steps for log in logs)
-    wall = sum(log.wall_s for log in logs)
-    dropped: dict[str, int] = {}
-    for log in logs:
-        for k, v in log.dropped.items():
-            dropped[k] = dropped.get(k, 0) + v
-    fallback = sum(sum(1 for s in log.sources if s != "policy") for log in logs)
-    finite = [e for e in eps if math.isfinite(e["rms_error_m"])]
-    out = {
-        "episodes": len(eps),
-        "success_rate": float(np.mean([e["success"] for e in eps])) if eps else math.nan,
-        "crashes": int(sum(e["crashed"] for e in eps)),
-        "position_rms_error_m": float(np.mean([e["rms_error_m"] for e in finite])) if finite else math.nan,
-        "mean_error_last_2s_m": float(np.mean([e["mean_error_last_window_m"] for e in finite])) if finite else math.nan,
-        "final_distance_m": float(np.mean([e["final_distance_m"] for e in finite])) if finite else math.nan,
-        "steps": int(steps),
-        "steps_per_s": steps / wall if wall > 0 else math.nan,
-        "control_latency_p50_us": float(np.percentile(lat, 50)) if lat.size else math.nan,
-        "control_latency_p99_us": float(np.percentile(lat, 99)) if lat.size else math.nan,
-        "failsafe_events": sum(1 for log in logs if log.failsafe),
-        "fallback_steps": int(fallback),
-        "telemetry_messages": int(sum(log.telemetry_sent for log in logs)),
-        "packets_dropped": dropped,
-        "per_episode": eps,
-    }
-    if task == "circle" and finite:
-        out["radial_rms_m"] = float(np.mean([e["radial_rms_m"] for e in finite]))
-        out["speed_error_mps"] = float(np.mean([e["speed_error_mps"] for e in finite]))
-    return out
-
-
-def print_summary(s: dict, policy: Path) -> None:
-    print(f"quad-sitl: {policy} — {s['episodes']} episodes, {s['steps']:,} steps at {s['steps_per_s']:,.0f} steps/s")
-    print(f"  success rate            {s['success_rate']:.0%}   crashes {s['crashes']}")
-    print(
-        f"  position error          RMS {s['position_rms_error_m'] * 100:.2f} cm, last 2 s mean "
-        f"{s['mean_error_last_2s_m'] * 100:.2f} cm, final {s['final_distance_m'] * 100:.2f} cm"
-    )
-    if "radial_rms_m" in s:
-        print(
-            f"  circle (second lap)     radial RMS {s['radial_rms_m'] * 100:.2f} cm, "
-            f"speed error {s['speed_error_mps'] * 100:.2f} cm/s"
-        )
-    print(
-        f"  control-loop latency    p50 {s['control_latency_p50_us']:.0f} µs, p99 {s['control_latency_p99_us']:.0f} µs"
-    )
-    dropped = ", ".join(f"{k} {v}" for k, v in sorted(s["packets_dropped"].items())) or "none"
-    print(f"  failsafes {s['failsafe_events']}, fallback steps {s['fallback_steps']}, packets dropped: {dropped}")
-
-
 class _Terminated(BaseException):
     """SIGTERM arrived: unwind (every finally runs, the simulator is stopped) and exit 143. A
     BaseException, like KeyboardInterrupt, so that no `except Exception` on the way swallows it."""
@@ -402,11 +358,16 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_flag("--node-only needs --connect tcp:HOST:PORT")
     if args.connect and not args.node_only:
         return _bad_flag("--connect is for --node-only; without it quad-sitl starts its own simulator (--listen)")
+    if (why := sitl_node.misused(args)) is not None:
+        return _bad_flag(why)
+    if args.episodes is None:
+        args.episodes = 1 if args.node_only or sitl_node.commanded(args) else 10
     policy_path = args.policy if args.policy is not None else SHIPPED_HOVER
     for path, what in ((policy_path, "an ONNX policy file from quad-export"), (args.key, "a signing key file")):
         if path is not None and (why := _check_input_file(path, what)) is not None:
             return _bad_flag(why)
     outputs = {"--json": args.json, "--plot": args.plot, "--video": args.video, "--tlog": args.tlog}
+    outputs["--trace"] = args.trace
     for flag, out in outputs.items():
         if out is not None:
             try:
@@ -434,6 +395,8 @@ def main(argv: list[str] | None = None) -> int:
     from quadpilot.core.observation import TRACK_LAYOUT
 
     task = args.task or policy.info.task
+    if args.node_only and (task == "circle" or policy.info.layout.name == TRACK_LAYOUT.name):
+        return _bad_flag(f"--node-only flies to a fixed --target; {policy_path} is a {policy.info.task} policy")
     if (task == "circle") != (policy.info.layout.name == TRACK_LAYOUT.name):
         return _bad_flag(
             f"{policy_path} observes the {policy.info.layout.name} layout "
@@ -455,17 +418,18 @@ def main(argv: list[str] | None = None) -> int:
     old = signal.signal(signal.SIGTERM, _on_sigterm) if _in_main_thread() else None
     try:
         with tempfile.TemporaryDirectory(prefix="quad-sitl-") as tmp:  # the policy's vehicle file, if it needs one
-            if not args.node_only:
-                from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
+            if args.node_only:
+                return sitl_node.fly(args, policy, policy_path, key, _draw)
+            from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
 
-                try:
-                    rest = [*rest, *_vehicle_args(args, policy.info.vehicle, Path(tmp))]
-                except ValueError as e:  # the policy's vehicle cannot be written as a vehicle file
-                    return _bad_file(f"{policy_path}: {e}")
-                try:  # the flags together with the policy's vehicle (e.g. a noise model it has not)
-                    config_from_args(build_sim_parser("quad-sitl").parse_args(rest))
-                except UsageError as e:
-                    return _bad_flag(str(e))
+            try:
+                rest = [*rest, *_vehicle_args(args, policy.info.vehicle, Path(tmp))]
+            except ValueError as e:  # the policy's vehicle cannot be written as a vehicle file
+                return _bad_file(f"{policy_path}: {e}")
+            try:  # the flags together with the policy's vehicle (e.g. a noise model it has not)
+                config_from_args(build_sim_parser("quad-sitl").parse_args(rest))
+            except UsageError as e:
+                return _bad_flag(str(e))
             return _fly(args, rest, policy, policy_path, task, key)
     except _Terminated:
         print("quad-sitl: terminated", file=sys.stderr)
@@ -512,34 +476,44 @@ def _in_main_thread() -> bool:
 
 
 def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes | None) -> int:
-    """Start the simulator (unless --node-only), fly, summarise. The simulator is stopped on every
-    way out of here (return, exception, Ctrl-C, SIGTERM via `_Terminated`)."""
+    """Start the simulator, fly, summarise. The simulator is stopped on every way out of here (return,
+    exception, Ctrl-C, SIGTERM via `_Terminated`)."""
     from quadpilot.core.mission import default_duration_s, plan_episode
     from quadpilot.runtime import SafetyMonitor
     from quadpilot.runtime.node import Node, NodeConfig, NodeError
 
-    duration = args.duration or default_duration_s(task)
+    commanded = sitl_node.commanded(args)
+    if commanded and args.lockstep:
+        print(sitl_node.LOCKSTEP_COMMANDED_WARNING, file=sys.stderr)
+    duration = args.duration or (sitl_node.COMMANDED_DURATION_S if commanded else default_duration_s(task))
     monitor = SafetyMonitor(policy)
     sim = None
     tlog = None
     logs = []
     try:
-        if args.node_only:
-            address = args.connect
-        else:
-            listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
-            cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", listen]
-            cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed), "--task", task]
-            cmd += ["--lockstep" if args.lockstep else "--realtime", *rest]
-            if args.key is not None:
-                cmd += ["--key", str(args.key)]
-            sim = _Simulator(cmd)
-            ok, address = sim.wait_listening(30.0)
-            if not ok:
-                print(f"quad-sitl: error: the simulator did not start: {address}", file=sys.stderr)
-                return 1
+        listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
+        cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", listen]
+        cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed), "--task", task]
+        cmd += ["--lockstep" if args.lockstep else "--realtime", *rest]
+        if args.key is not None:
+            cmd += ["--key", str(args.key)]
+        sim = _Simulator(cmd)
+        ok, address = sim.wait_listening(30.0)
+        if not ok:
+            print(f"quad-sitl: error: the simulator did not start: {address}", file=sys.stderr)
+            return 1
         gcs = None if args.gcs.lower() == "none" else args.gcs
-        node = Node(NodeConfig(connect=address, duration_s=duration, lockstep=args.lockstep, gcs=gcs, signing_key=key))
+        node = Node(
+            NodeConfig(
+                connect=address,
+                duration_s=duration,
+                lockstep=args.lockstep,
+                gcs=gcs,
+                signing_key=key,
+                command=commanded,
+                start="landed" if commanded else "air",
+            )
+        )
         if args.tlog is not None:
             from quadpilot.link.tlog import TlogWriter
 
@@ -547,7 +521,8 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
         try:
             for k in range(args.episodes):
                 mission = plan_episode(task, args.seed, k, policy.info.control_period_s)
-                logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap, targets=mission.target_at))
+                targets = None if commanded else mission.target_at  # commanded: the ground station's
+                logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap, targets=targets))
         except NodeError as e:
             print(f"quad-sitl: error: {e}", file=sys.stderr)
             return 1
@@ -561,12 +536,14 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
             tlog.close()
         if sim is not None:
             sim.stop()
-    summary = summarise(logs, policy.info.control_period_s, task)
+    summary = sitl_node.summarise(logs, policy.info.control_period_s, task)
     summary["task"] = task
     summary["policy"] = str(policy_path)
     summary["backend"] = args.backend
     summary["monitor_events"] = dict(monitor.events)
-    print_summary(summary, policy_path)
+    if commanded:
+        summary["commanded"] = sitl_node.commanded_summary(logs)
+    sitl_node.print_summary(summary, policy_path)
     try:
         if args.json:
             args.json.write_text(json.dumps(summary, indent=2) + "\n")

@@ -142,3 +142,75 @@ def test_udp_link_pins_its_peer_and_drops_torn_datagrams():
         link.close()
         server.close()
         intruder.close()
+
+
+# --- the MAVLink version -------------------------------------------------------------------------
+def _stream_pair():
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        theirs = socket.create_connection(server.getsockname())
+        ours, _ = server.accept()
+    return transport.StreamLink(ours, "pair", 1, 1), theirs
+
+
+def _sent(link, theirs) -> list:
+    """What `link` sent since the last call, parsed: (type, MAVLink version, frame length in bytes)."""
+    link.flush()
+    theirs.settimeout(1.0)
+    data = theirs.recv(65536)
+    msgs = transport.new_codec(None, 9, 9).parse_buffer(data) or []
+    return [(m.get_type(), 1 if m.get_msgbuf()[0] == 0xFE else 2, len(m.get_msgbuf())) for m in msgs]
+
+
+def _peer_says(link, theirs, codec) -> None:
+    codec.heartbeat_send(6, 8, 0, 0, 0)
+    theirs.sendall(bytes(codec.file.out.pop()))
+    assert link.recv(1.0).get_type() == "HEARTBEAT"
+
+
+def test_a_link_speaking_as_its_peer_starts_in_mavlink1_and_follows_the_peers_version():
+    from pymavlink.dialects.v10 import common as mavlink1
+
+    link, theirs = _stream_pair()
+    try:
+        link.speak_as_peer()
+        link.mav.heartbeat_send(2, 0, 0, 0, 4)
+        assert _sent(link, theirs) == [("HEARTBEAT", 1, 6 + 9 + 2)]  # before the peer said anything: MAVLink 1
+        _peer_says(link, theirs, mavlink2.MAVLink(_Sink(), srcSystem=200, srcComponent=200))
+        assert link.version == link.peer_version == 2
+        link.mav.statustext_send(4, b"two")
+        assert _sent(link, theirs) == [("STATUSTEXT", 2, 10 + 4 + 2)]  # MAVLink 2 trims trailing zeros
+        _peer_says(link, theirs, mavlink1.MAVLink(_Sink(), srcSystem=200, srcComponent=200))
+        assert link.version == link.peer_version == 1
+        link.mav.statustext_send(4, b"one")
+        # MAVLink 1: all of severity and text[50], and no room for the extension fields id and chunk_seq
+        assert _sent(link, theirs) == [("STATUSTEXT", 1, 6 + 51 + 2)]
+        link.mav.hil_actuator_controls_send(0, [0.5] * 16, 128, 1)
+        assert _sent(link, theirs) == [("HIL_ACTUATOR_CONTROLS", 1, 6 + 81 + 2)]
+    finally:
+        link.close()
+        theirs.close()
+
+
+def test_a_link_speaks_mavlink2_unless_asked_and_a_signed_link_cannot_follow_its_peer():
+    from pymavlink.dialects.v10 import common as mavlink1
+
+    link, theirs = _stream_pair()
+    try:
+        _peer_says(link, theirs, mavlink1.MAVLink(_Sink(), srcSystem=200, srcComponent=200))
+        assert link.peer_version == 1 and link.version == 2
+        link.mav.heartbeat_send(2, 0, 0, 0, 4)
+        assert _sent(link, theirs) == [("HEARTBEAT", 2, 10 + 9 + 2)]
+        link.sign(KEY)
+        with pytest.raises(ValueError, match="speaks MAVLink 2 only"):
+            link.speak_as_peer()
+    finally:
+        link.close()
+        theirs.close()
+    link, theirs = _stream_pair()
+    try:
+        link.speak_as_peer()
+        with pytest.raises(ValueError, match="signing needs MAVLink 2"):
+            link.sign(KEY)
+    finally:
+        link.close()
+        theirs.close()

@@ -282,7 +282,9 @@ class ScriptedPeer:
     def __init__(self, script) -> None:
         self.mav = transport.new_codec(self, 1, 1)
         self.bytes = 0
-        self._script = iter(script)
+        # an autopilot's HEARTBEAT first: the simulator steps only once it has heard one
+        (heartbeat,) = parse(mavlink2.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3).pack(mavlink2.MAVLink(None)))
+        self._script = iter([(heartbeat, 1), *script])
         self._msg, self._left = None, 0
 
     def write(self, buf) -> None:
@@ -439,6 +441,8 @@ def test_bad_commands_do_not_keep_the_last_good_one_alive_in_realtime():
     thread = threading.Thread(target=lambda: result.setdefault("stats", sim.serve()), daemon=True)
     thread.start()
     link = transport.connect(f"tcp:127.0.0.1:{port}", 255, 190, 5.0)
+    link.mav.heartbeat_send(2, 12, 0, 0, 3)  # the simulator steps only once it has heard one
+    link.flush()
     zacc, sent_good = {}, False
     try:
         deadline = time.monotonic() + 10.0

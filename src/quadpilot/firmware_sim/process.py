@@ -2,10 +2,13 @@
 plant in lockstep with the peer's actuator messages or on the host's clock.
 
 Per episode: the start state and the sensors' noise come from np.random.default_rng([seed,
-episode]); the step's messages go out (`protocol`), and then, in lockstep, the simulator waits for
-exactly one HIL_ACTUATOR_CONTROLS, applies it and advances the physics (`plant`) by one `dt`. In
-realtime mode it advances on the host's monotonic clock instead, holding the last command like an
-ESC and cutting the motors when valid commands stop.
+episode]); the simulator waits for the autopilot's HEARTBEAT (as PX4-API simulators do: RotorPy's
+PX4Multirotor calls `wait_heartbeat()` before its first step), at most `lockstep_timeout_s`, then the
+step's messages go out (`protocol`), and then, in lockstep, the simulator waits for exactly one
+HIL_ACTUATOR_CONTROLS, applies it and advances the physics (`plant`) by one `dt`. In realtime mode
+it advances on the host's monotonic clock instead, holding the last command like an ESC and cutting
+the motors when valid commands stop. An actuator message before the HEARTBEAT is dropped and counted
+(`before_heartbeat`).
 
 A dropped command (see `protocol`) in lockstep still counts as the peer's answer for the step (the
 peer is waiting for the next HIL_SENSOR: not stepping would stall both sides), and the motors keep
@@ -90,16 +93,18 @@ class Simulator:
             k = 0
             while not self._stop.is_set() and (cfg.episodes is None or k < cfg.episodes):
                 link, early = self.listener.accept(POLL_S, self._stop.is_set)
+                heard = False
                 for msg in early:  # UDP: what arrived before (and including) the first valid message
+                    heard = heard or msg.get_type() == "HEARTBEAT"
                     if self._io.dispatch(msg, None) is not None:
-                        self._io.drop("before_first_state", None)
+                        self._io.drop("before_heartbeat" if not heard else "before_first_state", None)
                 if link is None:
                     break
                 if cfg.signing_key is not None:
                     link.sign(cfg.signing_key, state=self._signing)
                     self._signing = link.signing_state
                 try:
-                    record = self._run_episode(link, k)
+                    record = self._run_episode(link, k, heard)
                 finally:
                     if cfg.address.protocol == "tcp":
                         link.close()
@@ -115,7 +120,9 @@ class Simulator:
             self.listener.close()
         return self.stats
 
-    def _run_episode(self, link, k: int) -> EpisodeRecord:
+    def _run_episode(self, link, k: int, heard: bool = False) -> EpisodeRecord:
+        """Episode `k` on `link`; `heard`: the peer's HEARTBEAT has arrived already (UDP: with the
+        datagram that made it the peer)."""
         cfg = self.cfg
         ep = EpisodeTally(k, link.peer_label)
         state0, rng = cfg.start_state(k)
@@ -125,9 +132,11 @@ class Simulator:
         self._sensors = Sensors(cfg.sensor_noise, cfg.dt, rng, cfg.home.alt_m, cfg.imu_noise, cfg.estimator_noise)
         n, wall0, end = 0, time.monotonic(), "max_steps"
         try:
-            self._io.send_step(link, plant, 0, self._sensors)
-            run = self._lockstep if cfg.lockstep else self._realtime
-            n, end = run(link, plant, rng, ep)
+            end = None if heard else self._await_heartbeat(link, ep)
+            if end is None:
+                self._io.send_step(link, plant, 0, self._sensors)
+                run = self._lockstep if cfg.lockstep else self._realtime
+                n, end = run(link, plant, rng, ep)
         except PeerClosed as e:
             log.debug("episode %d: %s", k, e)
             n, end = ep.steps_done, "peer_closed"
@@ -161,6 +170,25 @@ class Simulator:
             overruns=ep.overruns,
             rate_limited_steps=plant.rate_limited_steps,
         )
+
+    def _await_heartbeat(self, link, ep: EpisodeTally) -> str | None:
+        """Wait for the peer's HEARTBEAT before the first step: None once it came, else why the
+        episode ends ("no_heartbeat" after `lockstep_timeout_s`, "stopped"). What else arrives is
+        counted as usual; an actuator message is dropped (`before_heartbeat`)."""
+        heartbeats = self.stats.heartbeats
+        deadline = time.monotonic() + self.cfg.lockstep_timeout_s
+        while self.stats.heartbeats == heartbeats:
+            if self._stop.is_set():
+                return "stopped"
+            left = deadline - time.monotonic()
+            if left <= 0:
+                log.info(
+                    "episode %d: no HEARTBEAT from %s within %.1f s", ep.index, ep.peer, self.cfg.lockstep_timeout_s
+                )
+                return "no_heartbeat"
+            if self._io.receive(link, min(left, POLL_S), ep) is not None:
+                self._io.drop("before_heartbeat", ep)
+        return None
 
     def _advance(self, link, plant: Plant, command: np.ndarray, n: int, rng, ep: EpisodeTally) -> int:
         """Step the plant once, send the next step's messages, then note a crash (after the send:

@@ -11,10 +11,14 @@ Out, each step, in this order (PX4's Simulator MAVLink API; `link.wire` encodes 
    force), magnetometer, barometer (with `imu_noise`: `core.sensor_noise`'s IMU model).
 
 In: one receive point (`receive`) dispatching on the message type. HIL_ACTUATOR_CONTROLS is handed
-to the server loop; HEARTBEAT is counted; BAD_DATA (pymavlink's type for garbage and bad CRCs) and
+to the server loop; HEARTBEAT is counted (the server loop starts an episode on the first one, in
+either MAVLink version: the link parses both); BAD_DATA (pymavlink's type for garbage and bad CRCs) and
 unknown message ids are dropped and counted by reason; other known messages are counted as
 ignored; a parser failure is counted as `parser_error`. Nothing that arrives raises, except the
 peer closing the link (`PeerClosed`).
+
+Out goes MAVLink 2, as the simulator's own system (`link.transport.SIM_SYSTEM_ID`, not the
+autopilot's).
 
 Commands (`command`): `controls[0..3]` is ω/ω_max per rotor in PX4 quad-X order. While the peer is
 disarmed (mode bit 128 clear) the motors get 0 whatever it sends. An armed message with a

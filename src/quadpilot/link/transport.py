@@ -12,7 +12,12 @@ here, and pymavlink does what it is made for: encoding, parsing, CRC and signatu
 - Outgoing messages are queued by the encoder and leave on `flush()`: one step, one TCP send.
 - Links speak MAVLink 2 with the common message set from the first byte: pymavlink's automatic
   version switch would otherwise change the dialect of the whole process (`mavutil.set_dialect`
-  and the `MAVLINK20` environment variable) the moment a MAVLink 2 byte arrives.
+  and the `MAVLINK20` environment variable) the moment a MAVLink 2 byte arrives. A link can instead
+  answer in the version its peer speaks (`Link.speak_as_peer`, for the autopilot facing a simulator
+  it did not choose): MAVLink 1 until the peer's first message, then whatever the peer sends. It
+  parses both versions either way (a MAVLink 2 parser reads MAVLink 1 frames; mavlink.io,
+  "MAVLink 2", backwards compatibility), and its MAVLink 1 frames come from pymavlink's own
+  MAVLink 1 codec, which leaves out the extension fields MAVLink 1 has no room for.
 - A UDP link is pinned to one peer; datagrams from anyone else are counted and dropped, and a
   datagram is parsed on its own (a truncated one cannot swallow the start of the next).
 - Signing (MAVLink 2 message signing, HMAC-SHA-256 truncated to 48 bits, per-stream timestamps
@@ -31,12 +36,16 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from pymavlink.dialects.v10 import common as mavlink1
 from pymavlink.dialects.v20 import common as mavlink2
 
-SIM_SYSTEM_ID = 1
-"""MAVLink system id of the simulator's messages (the vehicle it simulates)."""
-SIM_COMPONENT_ID = 1
-"""MAVLink component id of the simulator's messages."""
+SIM_SYSTEM_ID = 200
+"""MAVLink system id of the simulator's messages: a system of its own, not the autopilot's (system 1,
+`runtime.node.NODE_SYSTEM_ID`), so a .tlog or a router tells the two apart; 200 stays clear of the
+vehicle numbers (1, 2, ...) and of a ground station's 255."""
+SIM_COMPONENT_ID = 200
+"""MAVLink component id of the simulator's messages: MAV_COMP_ID_IMU (200), the component PX4's
+Gazebo plugins send HIL_SENSOR as (PX4-SITL_gazebo-classic, src/mavlink_interface.cpp)."""
 SEND_TIMEOUT_S = 1.0
 """s, a TCP peer that has not taken one step's messages in this long is treated as gone."""
 READ_SIZE = 65536
@@ -178,11 +187,13 @@ def bad_data_reason(msg) -> str:
 
 # --- links -----------------------------------------------------------------------------------
 class Link:
-    """A MAVLink 2 connection to one peer over one socket (see the module docstring).
+    """A MAVLink connection to one peer over one socket (see the module docstring).
 
-    `mav` is the pymavlink codec: `link.mav.heartbeat_send(...)` queues a message, `flush()` sends
-    the queue. `recv(timeout)` returns the next message or None. `tap`, if set, is called with
-    (direction "in"/"out", raw message bytes) for every message sent or received (a .tlog writer).
+    `mav` is the pymavlink codec messages are sent with: `link.mav.heartbeat_send(...)` queues a
+    message, `flush()` sends the queue. `recv(timeout)` returns the next message or None. `tap`, if
+    set, is called with (direction "in"/"out", raw message bytes) for every message sent or received
+    (a .tlog writer). `version` is the MAVLink version sent (2 unless `speak_as_peer`), `peer_version`
+    the version of the peer's last message (None before its first).
     """
 
     def __init__(self, sock: socket.socket, label: str, system: int, component: int) -> None:
@@ -194,8 +205,35 @@ class Link:
         self.tap = None
         self._out = bytearray()
         self._pending: deque = deque()
-        self.mav = new_codec(self, system, component)
-        self._signing = None
+        self._codec = new_codec(self, system, component)  # parses both versions; sends MAVLink 2
+        self._codec1 = None  # pymavlink's MAVLink 1 codec, made when first needed
+        self.version = 2
+        self.peer_version: int | None = None
+        self._follow = False
+
+    @property
+    def mav(self):
+        """The codec to send with: MAVLink 1 or 2 (`version`)."""
+        return self._codec1 if self.version == 1 else self._codec
+
+    def speak_as_peer(self) -> None:
+        """Send MAVLink 1 until the peer's first message, then the version of its messages (and
+        follow it if it changes). MAVLink 1 first because every MAVLink 2 parser reads it, and a
+        PX4-API simulator (RotorPy's PX4Multirotor) waits for our HEARTBEAT before it sends
+        anything. Not for a signed link: signing needs MAVLink 2 (ValueError)."""
+        if self._codec.signing.sign_outgoing:
+            raise ValueError("a signed link speaks MAVLink 2 only")
+        self._follow = True
+        self._use_version(self.peer_version or 1)
+
+    def _use_version(self, version: int) -> None:
+        if version == self.version:
+            return
+        if version == 1 and self._codec1 is None:
+            self._codec1 = mavlink1.MAVLink(self, srcSystem=self.system, srcComponent=self.component)
+        seq = self.mav.seq  # one sequence per sender, whatever the version of its frames
+        self.version = version
+        self.mav.seq = seq
 
     # The codec calls write() for every message it encodes.
     def write(self, buf) -> None:
@@ -208,8 +246,10 @@ class Link:
         fallback: pymavlink's `allow_unsigned_callback` would also admit badly signed ones).
         `state`: the `signing_state` of an earlier link to the same peer, carried over so that a
         packet recorded on that link cannot be replayed on this one."""
-        s = self.mav.signing if state is None else state
-        self.mav.signing = s
+        if self._follow:
+            raise ValueError("a link that speaks as its peer cannot sign: signing needs MAVLink 2")
+        s = self._codec.signing if state is None else state
+        self._codec.signing = s
         s.secret_key = bytes(key)
         s.sign_outgoing = True
         s.link_id = link_id
@@ -218,7 +258,7 @@ class Link:
 
     @property
     def signing_state(self):
-        return self.mav.signing
+        return self._codec.signing
 
     def recv(self, timeout: float = 0.0):
         """The next message (possibly a BAD_DATA), or None if none arrived within `timeout` s."""
@@ -239,16 +279,20 @@ class Link:
                 return None
 
     def _parse(self, data: bytes) -> None:
-        msgs = self.mav.parse_buffer(data)
+        msgs = self._codec.parse_buffer(data)
         if msgs:
             for m in msgs:
                 if m.get_type() != "BAD_DATA":
+                    raw = m.get_msgbuf()
+                    self.peer_version = 1 if raw[0] == mavlink2.PROTOCOL_MARKER_V1 else 2
                     if self.tap is not None:
-                        self.tap("in", bytes(m.get_msgbuf()))
+                        self.tap("in", bytes(raw))
                 elif m.reason == "Invalid signature":
                     raw = m.data
                     signed = len(raw) > 2 and raw[0] == mavlink2.PROTOCOL_MARKER_V2 and raw[2] & 0x01
-                    m.reason = "signature: " + (self.mav.last_reject if signed else "unsigned")
+                    m.reason = "signature: " + (self._codec.last_reject if signed else "unsigned")
+            if self._follow and self.peer_version is not None:
+                self._use_version(self.peer_version)
             self._pending.extend(msgs)
 
     def _fill(self) -> None:  # pragma: no cover - overridden
@@ -343,16 +387,16 @@ class DatagramLink(Link):
                 continue
             self.last_sender = sender
             self._parse(data)
-            if self.mav.buf_len():  # a datagram ends where its messages end: drop a torn tail
+            if self._codec.buf_len():  # a datagram ends where its messages end: drop a torn tail
                 self.truncated_datagrams += 1
                 self._reset_parser()
             if self._pending and self.peer is None:
                 return  # let the listener pin this sender before anything else is read
 
     def _reset_parser(self) -> None:
-        signing = self.mav.signing
-        self.mav = new_codec(self, self.system, self.component)
-        self.mav.signing = signing
+        signing, seq = self._codec.signing, self._codec.seq
+        self._codec = new_codec(self, self.system, self.component)
+        self._codec.signing, self._codec.seq = signing, seq
 
     def pin(self, peer: tuple | None) -> None:
         """Talk only to `peer`; None: wait for a new one, with a fresh parser (nothing half-read

@@ -138,7 +138,7 @@ class Commander(CommandHandlers):
         self._reached_resends = 0
         self._mission_version = 0
         self.last_gcs: float | None = None
-        self.failsafe: str | None = None  # None, "hold" (waiting COM_FAIL_ACT_T) or "action"
+        self.failsafe: str | None = None  # None, "hold" (waiting COM_FAIL_ACT_T), "action" or "motors cut"
         self.failsafe_at = 0.0
         self.dropped: Counter = Counter()
         self.received = 0
@@ -282,13 +282,33 @@ class Commander(CommandHandlers):
         self.mode = HOLD  # a new flight starts from Hold (MAVSDK arms from there)
         self._out.append(self.heartbeat())
 
-    def arm_in_air(self) -> None:
-        """Start armed and holding where the vehicle is (a simulator that starts in the air)."""
+    def arm_in_air(self, state=None) -> None:
+        """Start armed and holding where the vehicle is (a simulator that starts in the air): at the
+        state of the last `step`, or at `state` (12,) given before the first step, so that the first
+        heartbeat a ground station hears already says armed."""
+        if state is not None:
+            s = np.asarray(state, np.float64)
+            if s.shape != (12,) or not np.all(np.isfinite(s)):
+                raise BadVehicleState(f"vehicle state {s.tolist()}: expected 12 finite numbers (link.wire checks them)")
+            self.state = s
         if self.state is None:
-            raise ValueError("arm_in_air needs a first step() with the vehicle's state")
+            raise ValueError("arm_in_air needs the vehicle's state: a first step(), or state=")
         self._arm()
         self.landed, self.flown, self.motors = False, True, True
         self.detector.landed_h.state = self.detector.maybe_landed.state = self.detector.ground_contact.state = False
+
+    def motors_cut(self, reason: str) -> list:
+        """The owner has cut the motors on its own (its failsafe, e.g. the simulator link lost): say
+        so as PX4 reports a failsafe, disarmed with system status CRITICAL and a STATUSTEXT, so that a
+        ground station does not go on showing an armed vehicle. Returns the messages to send."""
+        if self.armed:
+            self._disarm()
+            self._out.pop()  # _disarm's heartbeat: the one below says the same, and CRITICAL
+        self.failsafe = "motors cut"  # heartbeats say CRITICAL until the next step while disarmed
+        self._text(f"Failsafe: {reason}", M.MAV_SEVERITY_CRITICAL)
+        self._out.append(self.heartbeat())
+        out, self._out = self._out, []
+        return out
 
     def _mission_changed(self) -> None:
         if self.missions.version != self._mission_version:
@@ -426,7 +446,7 @@ class Commander(CommandHandlers):
 
     def _link_alive(self, now: float) -> None:
         self.last_gcs = now
-        if self.failsafe is not None:
+        if self.failsafe in ("hold", "action"):  # a link-loss failsafe, not the owner's `motors_cut`
             if self.failsafe == "hold":
                 self.nav.freeze(False)  # resume what was being flown
             self.failsafe = None

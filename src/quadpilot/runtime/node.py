@@ -1,14 +1,28 @@
 """The autopilot side of software-in-the-loop: a MAVLink node that flies a policy file.
 
 It connects to a PX4-style simulator (it is the client; the simulator listens, TCP 4560 by
-default), sends HEARTBEAT, and per simulation step answers exactly once: on HIL_SENSOR (the
-message PX4 itself steps on, sent last in each step), with the ground truth of the same step's
-HIL_STATE_QUATERNION and the body rates of the HIL_SENSOR gyro, it builds the observation with
-`core.observation.build_observation` (the function training used), runs the policy through the
-`SafetyMonitor`, and sends one HIL_ACTUATOR_CONTROLS (armed, lockstep flag in lockstep mode).
-When the simulator also sends ODOMETRY for the step (a state estimate, `--estimator-noise`), the
-observation is built from that estimate instead of the ground truth, which is still what the
-flight is logged and judged on.
+default), sends HEARTBEAT first (a PX4-API simulator waits for it before its first step) and then
+at 1 Hz, and per simulation step answers exactly once: on HIL_SENSOR (the message PX4 itself steps
+on, sent last in each step), with the ground truth of the same step's HIL_STATE_QUATERNION and the
+body rates of the HIL_SENSOR gyro (FRD, the frame MAVLink defines; a simulator's
+HIL_STATE_QUATERNION rates are not trusted for flying: RotorPy 3.0.0 sends them in FLU), it builds
+the observation with `core.observation.build_observation` (the function training used), runs the
+policy through the `SafetyMonitor`, and sends one HIL_ACTUATOR_CONTROLS (armed, lockstep flag in
+lockstep mode). When the simulator also sends ODOMETRY for the step (a state estimate,
+`--estimator-noise`), the observation is built from that estimate instead of the ground truth,
+which is still what the flight is logged and judged on.
+
+The simulator's step need not be the policy's: the policy runs at the rate it was trained at on
+simulated time (the steps' `time_usec`), at the first step at or after each of its ticks, and the
+steps in between are answered with the command held from the last tick (a 250 Hz simulator gets
+one reply per step and a new command every 10 ms, alternately after 3 and 2 steps). The flight
+lasts `duration_s` of simulated time. The node speaks the MAVLink version the simulator speaks
+(`transport.Link.speak_as_peer`: MAVLink 1 until its first message), MAVLink 2 when signing.
+
+Home, the origin of the local frame the policy's target is given in, is `NodeConfig.home`, or the
+first valid position the simulator reports (`home=None`: a simulator whose origin we do not know,
+RotorPy's is lat 40, lon -74.3); the target is `NodeConfig.target` metres ENU from home, or the
+first valid position itself (`target=None`: hold where it started).
 
 One receive point (`Link.recv`, one system call per batch of messages) dispatching on
 `get_type()` through a table of handlers, one per message type (`_Flight.HANDLERS`). Link loss is
@@ -31,9 +45,20 @@ the fallback, as for any observation it cannot trust. A dropped state does not r
 link-loss timer, so a stream of them ends in the same failsafe as silence ("no valid state").
 
 Telemetry for a ground station (`gcs`, UDP 127.0.0.1:14550 by default, where QGroundControl and
-MAVProxy listen): HEARTBEAT and SYS_STATUS at 1 Hz, ATTITUDE and LOCAL_POSITION_NED at
-`telemetry_hz`, GLOBAL_POSITION_INT at 5 Hz (simulated time), STATUSTEXT on failsafe and
-fallback. Telemetry is best effort: nobody listening costs nothing and stops nothing.
+MAVProxy listen; `runtime.ground_station`): HEARTBEAT and SYS_STATUS at 1 Hz, ATTITUDE and
+LOCAL_POSITION_NED at `telemetry_hz`, GLOBAL_POSITION_INT at 5 Hz (simulated time), STATUSTEXT on
+failsafe and fallback. Telemetry is best effort: nobody listening costs nothing and stops nothing.
+
+Commanded (`NodeConfig.command`): the same socket also takes the ground station's commands. Every
+step, what it sent goes to a `runtime.commander.Commander` (at the step's simulated time) and the
+answers go back at once; every policy tick the commander steps on the state the policy flies on and
+its setpoint is the policy's target (with its velocity for a track-layout policy). While the
+commander is disarmed, or idle on the ground, the node sends zero commands with its armed flag and
+does not run the policy (the simulator's ground holds the vehicle); when the motors switch on again
+the monitor is reset, as for a new episode. The commander's streams replace the telemetry above, the
+node's safety STATUSTEXTs stay, and on the node's own failsafe the commander reports disarmed and
+CRITICAL (`Commander.motors_cut`). Times are simulated: with a real-time simulator they run with the
+wall clock, so COM_DL_LOSS_T is in real seconds.
 """
 
 from __future__ import annotations
@@ -47,13 +72,26 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from quadpilot.core.observation import build_observation
+from quadpilot.core.dynamics import NUM_MOTORS
+from quadpilot.core.observation import TRACK_LAYOUT, build_observation
 from quadpilot.link import transport, wire
 
+from .commander import Commander
+from .ground_station import NODE_COMPONENT_ID, NODE_SYSTEM_ID, GroundStation, commander_for, commander_summary
 from .safety import SafetyMonitor
+from .setpoint import collective_thrust
 
-NODE_SYSTEM_ID = 1
-NODE_COMPONENT_ID = 1  # MAV_COMP_ID_AUTOPILOT1
+START_MODES = ("air", "landed")
+"""`NodeConfig.start`: where a commanded flight starts."""
+DISARMED_LINGER_S = 1.0
+"""s a commanded flight goes on after the vehicle has flown and been disarmed (simulated time), so
+that the ground station hears the landed, disarmed vehicle in its 1 Hz streams before the link closes."""
+IDLE = np.zeros(NUM_MOTORS, np.float32)
+"""The command while the commander holds the motors off (disarmed, or idle on the ground)."""
+TICK_TOLERANCE_US = 100
+"""µs: a step this close before a policy tick counts as at it. Simulators that keep time in a float
+stamp steps a microsecond off (RotorPy: int(t·1e6) of a sum of 0.004 s steps gives 11 999 for 12 ms);
+any simulator step is many times longer."""
 
 
 class NodeError(RuntimeError):
@@ -66,18 +104,23 @@ class NodeConfig:
 
     connect: str = "tcp:127.0.0.1:4560"
     """Address of the simulator: tcp:HOST:PORT, or udp:HOST:PORT for a simulator on UDP."""
-    target: tuple[float, float, float] = (0.0, 0.0, 2.0)
-    """m, local ENU hover target (the training environment's home)."""
+    target: tuple[float, float, float] | None = (0.0, 0.0, 2.0)
+    """m, local ENU hover target (the training environment's home); None: the first valid position
+    (hold where the flight starts)."""
     targets: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None = field(default=None, compare=False)
-    """Moving target: step k → (position (3,), velocity (3,) or None), world ENU. None: `target`."""
-    home: wire.Home = field(default_factory=wire.Home)
-    """Geodetic origin of the local frame; must match the simulator's."""
+    """Moving target: policy step k → (position (3,), velocity (3,) or None), world ENU. None: `target`."""
+    home: wire.Home | None = field(default_factory=wire.Home)
+    """Geodetic origin of the local frame (our simulator's by default); None: the first valid
+    position received (HIL_STATE_QUATERNION, the message the node flies on)."""
     duration_s: float = 5.0
-    """s of simulated flight per episode."""
+    """s of simulated flight per episode (the steps' time_usec, not the host's clock)."""
     lockstep: bool = True
     """Set the lockstep flag in HIL_ACTUATOR_CONTROLS (the simulator advances one step per message)."""
     link_timeout_s: float = 0.1
     """s without a state message (host monotonic clock) before the failsafe latches."""
+    first_state_timeout_s: float = 10.0
+    """s to wait for the simulator's first state message after connecting (a simulator started by
+    hand may take a while between our HEARTBEAT and its first step); `link_timeout_s` after it."""
     connect_timeout_s: float = 10.0
     """s to keep retrying the connection while the simulator starts."""
     heartbeat_period_s: float = 1.0
@@ -91,7 +134,23 @@ class NodeConfig:
     signing_key: bytes | None = field(default=None, repr=False)
     """MAVLink 2 signing key (32 bytes) for the simulator link; None: unsigned."""
     control_period_s: float | None = None
-    """s per simulator step, if it differs from the policy's (a timing test at another rate)."""
+    """s per simulator step, if known in advance; None: measured from the steps' time_usec (until
+    two steps have arrived, the policy's period is assumed)."""
+    speak_as_peer: bool = True
+    """Answer in the MAVLink version the simulator speaks (`transport.Link.speak_as_peer`); False,
+    or a signing key: MAVLink 2 only."""
+    command: bool = False
+    """Answer the ground station at `gcs` as a PX4 vehicle (`runtime.commander`): the policy flies to
+    the commander's setpoint (`target` and `targets` are not used), the motors are off while it is
+    disarmed or idle, its telemetry streams replace the GroundStation's own, and the flight ends
+    DISARMED_LINGER_S after the vehicle has flown and been disarmed (`duration_s` is the cap)."""
+    start: str = "air"
+    """With `command`: "air", armed and holding where the first valid state is (a simulator that
+    starts in flight); "landed", disarmed on the ground until the ground station arms it."""
+
+    def __post_init__(self) -> None:
+        if self.start not in START_MODES:
+            raise ValueError(f"start must be one of {START_MODES}, got {self.start!r}")
 
 
 @dataclass
@@ -100,71 +159,45 @@ class EpisodeLog:
 
     t: list = field(default_factory=list)
     states: list = field(default_factory=list)
-    """Ground truth per step (12-state ENU/FLU); a step whose state was dropped repeats the last valid one."""
+    """Ground truth per simulator step (12-state ENU/FLU); a step whose state was dropped repeats the
+    last valid one."""
     targets: list = field(default_factory=list)
     commands: list = field(default_factory=list)
     sources: list = field(default_factory=list)
+    ticks: list = field(default_factory=list)
+    """Per step: True where the policy (or the monitor's fallback) ran, False where the command was held."""
     latency_s: list = field(default_factory=list)
     wall: list = field(default_factory=list)
     """perf_counter() at each step's HIL_SENSOR: the loop's period and jitter."""
+    replies: int = 0
+    """HIL_ACTUATOR_CONTROLS sent in answer to a step, including blind ones before any valid state
+    (not logged: nothing to log them against)."""
+    blind_replies: int = 0
+    """Of `replies`, those flown blind (their step's state dropped), logged or not."""
+    home: wire.Home | None = None
+    """The geodetic origin flown with (`NodeConfig.home`, or the first valid position)."""
+    mavlink_version: int = 2
+    """The MAVLink version the node spoke to the simulator at the end of the flight."""
     dropped: Counter = field(default_factory=Counter)
     """Messages and states refused, by reason (see the module docstring)."""
     failsafe: str | None = None
     failsafe_latency_s: float | None = None
     wall_s: float = 0.0
     telemetry_sent: int = 0
+    events: list = field(default_factory=list)
+    """Commanded flights: (simulated time s, text) of every STATUSTEXT the commander sent."""
+    commander: dict | None = None
+    """Commanded flights: the commander's state at the end (armed, flown, landed state, mode, what
+    the ground station sent and what of it was dropped)."""
 
     @property
     def steps(self) -> int:
         return len(self.commands)
 
-
-class GroundStation:
-    """Telemetry to a ground station over UDP, rate-limited on simulated time."""
-
-    def __init__(self, address: str, home: wire.Home, control_period_s: float, telemetry_hz: float, tap=None):
-        self.link = transport.connect(address, NODE_SYSTEM_ID, NODE_COMPONENT_ID)
-        self.link.tap = tap
-        self.home = home
-        self.every = max(1, round(1.0 / (telemetry_hz * control_period_s)))
-        self.every_global = max(1, round(0.2 / control_period_s))  # 5 Hz
-        self.every_status = max(1, round(1.0 / control_period_s))  # 1 Hz
-        self.sent = 0
-
-    def heartbeat(self, armed: bool, status: int) -> None:
-        mode = mavlink2.MAV_MODE_FLAG_HIL_ENABLED | (mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
-        self.link.mav.heartbeat_send(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_GENERIC, mode, 0, status)
-        self.sent += 1
-
-    def statustext(self, severity: int, text: str) -> None:
-        self.link.mav.statustext_send(severity, text.encode()[:50])
-        self.sent += 1
-
-    def step(self, k: int, state: np.ndarray, time_usec: int, armed: bool, errors: int, received: int) -> None:
-        ms = time_usec // 1000
-        mav = self.link.mav
-        if k % self.every == 0:
-            mav.attitude_send(**wire.attitude_fields(state, ms))
-            mav.local_position_ned_send(**wire.local_position_ned_fields(state, ms))
-            self.sent += 2
-        if k % self.every_global == 0:
-            mav.global_position_int_send(**wire.global_position_int_fields(state, self.home, ms))
-            self.sent += 1
-        if k % self.every_status == 0:
-            self.heartbeat(armed, mavlink2.MAV_STATE_ACTIVE)
-            sensors = (
-                mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO
-                | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-                | mavlink2.MAV_SYS_STATUS_SENSOR_3D_MAG
-                | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-            )
-            mav.sys_status_send(**wire.sys_status_fields(sensors, errors, received))
-            self.sent += 2
-            self.link.recv(0.0)  # drain whatever a GCS sent us (heartbeats); we take no commands
-            self.link._pending.clear()
-
-    def close(self) -> None:
-        self.link.close()
+    @property
+    def step_s(self) -> float:
+        """s, the simulator's step: the median interval between logged steps (NaN below two)."""
+        return float(np.median(np.diff(self.t))) if len(self.t) > 1 else math.nan
 
 
 class Node:
@@ -172,7 +205,7 @@ class Node:
 
     def __init__(self, cfg: NodeConfig) -> None:
         self.cfg = cfg
-        self._target = np.asarray(cfg.target, np.float64)
+        self._target = None if cfg.target is None else np.asarray(cfg.target, np.float64)
         self._signing = None  # carried over between episodes: a recorded packet cannot be replayed later
 
     def _connect(self) -> transport.Link:
@@ -199,26 +232,32 @@ class Node:
         cfg = self.cfg
         log = EpisodeLog()
         monitor.reset()
-        period = cfg.control_period_s or monitor.policy.info.control_period_s
+        period = monitor.policy.info.control_period_s
+        try:
+            commander = commander_for(monitor.policy.info.vehicle) if cfg.command else None
+        except ValueError as e:
+            raise NodeError(str(e)) from None
         link = self._connect()
         link.tap = tap
+        if cfg.speak_as_peer and cfg.signing_key is None:
+            link.speak_as_peer()
         gcs = None
         if cfg.gcs:
             try:
-                gcs = GroundStation(cfg.gcs, cfg.home, period, cfg.telemetry_hz, tap)
+                gcs = GroundStation(cfg.gcs, cfg.home or wire.Home(), period, cfg.telemetry_hz, tap, commander)
             except (OSError, ValueError) as e:
                 log.dropped[f"gcs_unavailable: {e}"] += 1
-        mav = link.mav
-        steps = round(cfg.duration_s / period)
         start = time.monotonic()
-        flight = _Flight(cfg, monitor, link, gcs, targets or cfg.targets, self._target, log, start)
+        flight = _Flight(cfg, monitor, link, gcs, targets or cfg.targets, self._target, log, start, commander)
         handle = flight.handle
         last_heartbeat = -math.inf
         try:
-            while log.steps < steps:
+            while not flight.done:
+                if commander is not None and gcs is not None and flight.state is None:
+                    gcs.serve(0.0)  # before the first state too: the ground station is never left unread
                 now = time.monotonic()
                 if now - last_heartbeat >= cfg.heartbeat_period_s:
-                    mav.heartbeat_send(
+                    link.mav.heartbeat_send(
                         mavlink2.MAV_TYPE_QUADROTOR,
                         mavlink2.MAV_AUTOPILOT_GENERIC,
                         mavlink2.MAV_MODE_FLAG_SAFETY_ARMED,
@@ -227,7 +266,8 @@ class Node:
                     )
                     link.flush()
                     last_heartbeat = now
-                wait = cfg.link_timeout_s - (now - flight.last_state_at)
+                limit = cfg.link_timeout_s if flight.any_state else cfg.first_state_timeout_s
+                wait = min(limit - (now - flight.last_state_at), cfg.heartbeat_period_s)
                 try:
                     msg = link.recv(wait) if wait > 0 else None  # the one receive point
                 except transport.PeerClosed:
@@ -236,26 +276,33 @@ class Node:
                     log.dropped["parser_error"] += 1
                     continue
                 if msg is None:
-                    if time.monotonic() - flight.last_state_at >= cfg.link_timeout_s:
-                        log.failsafe = (
-                            "no valid state" if flight.bad_at > flight.last_state_at else "state stream silent"
-                        )
+                    if time.monotonic() - flight.last_state_at >= limit:
+                        if not flight.any_state:
+                            log.failsafe = f"no state within {limit:g} s"
+                        elif flight.bad_at > flight.last_state_at:
+                            log.failsafe = "no valid state"
+                        else:
+                            log.failsafe = "state stream silent"
                         log.failsafe_latency_s = time.monotonic() - flight.last_state_at
-                        self._failsafe(link, gcs, log.failsafe, flight.state_time)
+                        self._failsafe(link, gcs, log.failsafe, flight.state_time, commander)
                         break
                     continue
                 handle(msg)
         except transport.PeerClosed:
-            if log.steps < steps:
+            if not flight.done:
                 log.failsafe = "simulator closed the link"
                 log.failsafe_latency_s = time.monotonic() - flight.last_state_at
-                self._failsafe(link, gcs, log.failsafe, flight.state_time)
+                self._failsafe(link, gcs, log.failsafe, flight.state_time, commander)
         finally:
             for name, reason in (("foreign_datagrams", "foreign_peer"), ("truncated_datagrams", "truncated_datagram")):
                 if getattr(link, name, 0):
                     log.dropped[reason] += getattr(link, name)
             if getattr(link, "oversized_datagrams", 0):
                 log.dropped["oversized_datagram"] += link.oversized_datagrams
+            log.mavlink_version = link.version
+            log.home = flight.home
+            if commander is not None:
+                log.commander = commander_summary(commander, gcs, flight.disarmed_at)
             link.close()
             if gcs is not None:
                 log.telemetry_sent = gcs.sent
@@ -264,9 +311,12 @@ class Node:
         return log
 
     @staticmethod
-    def _failsafe(link: transport.Link, gcs: GroundStation | None, reason: str, time_usec: int) -> None:
+    def _failsafe(
+        link: transport.Link, gcs: GroundStation | None, reason: str, time_usec: int, commander: Commander | None
+    ) -> None:
         """Latch motors off (disarmed, all commands 0) and say why over STATUSTEXT, to the
-        simulator and the ground station. The episode ends here: re-arming is a new `fly()`,
+        simulator and the ground station (with a commander, its heartbeat then says disarmed and
+        CRITICAL: `Commander.motors_cut`). The episode ends here: re-arming is a new `fly()`,
         never automatic. If the peer is gone, the sends fail and there is nothing more to do."""
         text = f"failsafe: {reason}, motors off"
         try:
@@ -279,7 +329,10 @@ class Node:
             pass
         if gcs is not None:
             gcs.statustext(mavlink2.MAV_SEVERITY_CRITICAL, text)
-            gcs.heartbeat(False, mavlink2.MAV_STATE_CRITICAL)
+            if commander is None:
+                gcs.heartbeat(False, mavlink2.MAV_STATE_CRITICAL)
+            else:
+                gcs.send(commander.motors_cut(reason))
 
 
 class _Flight:
@@ -296,13 +349,23 @@ class _Flight:
         link: transport.Link,
         gcs: GroundStation | None,
         targets: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None,
-        fixed: np.ndarray,
+        fixed: np.ndarray | None,
         log: EpisodeLog,
         start: float,
+        commander: Commander | None = None,
     ) -> None:
-        self.cfg, self.monitor, self.link, self.mav, self.gcs = cfg, monitor, link, link.mav, gcs
+        self.cfg, self.monitor, self.link, self.gcs = cfg, monitor, link, gcs
+        self.commander = commander  # None: fly to `targets`/`fixed`; else to its setpoint
+        self.track = monitor.policy.info.layout.name == TRACK_LAYOUT.name  # observes the target's velocity
+        airborne = commander is None or cfg.start == "air"
+        self.held_armed = airborne  # the armed flag sent with `held`: the commander's, else always armed
+        self.motors_on = airborne  # the motors were on at the last tick (or are at the start)
+        self.commanded = False  # the commander has had its first step
+        self.disarmed_at: int | None = None  # time_usec the commanded vehicle was first seen flown and disarmed
         self.targets, self.fixed, self.log = targets, fixed, log
+        self.home = cfg.home  # None until the first valid position, when `cfg.home` is None
         self.last_state_at = start  # host monotonic clock: link loss is measured on it
+        self.any_state = False  # a state message (valid or not) has arrived: link loss counts from here
         self.state: np.ndarray | None = None  # the last state that passed wire's checks
         self.state_time = -1
         self.bad_time = -1  # time_usec of the last state dropped by those checks: its step is flown blind
@@ -312,6 +375,17 @@ class _Flight:
         self.last_sensor_time = -1
         self.received = 0
         self.source = "policy"
+        # the policy's clock on simulated time (see the module docstring)
+        policy_period = monitor.policy.info.control_period_s
+        self.period_us = round(policy_period * 1e6)
+        self.step_us = round((cfg.control_period_s or policy_period) * 1e6)  # measured once 2 steps arrive
+        self.first_us: int | None = None
+        self.next_tick_us: int | None = None
+        self.ticks = 0
+        self.held: np.ndarray | None = None  # the command of the last tick, answered until the next
+        self.held_source = "policy"
+        self.target = fixed
+        self.done = False
 
     def handle(self, msg) -> None:
         kind = msg.get_type()
@@ -326,20 +400,30 @@ class _Flight:
     def on_state(self, msg) -> None:
         """HIL_STATE_QUATERNION: the ground truth of a step, checked before it is believed."""
         log = self.log
+        self.any_state = True
         if msg.time_usec <= self.state_time:
             log.dropped["time_backwards" if msg.time_usec < self.state_time else "time_repeated"] += 1
             return
         if self.state_time >= 0 and msg.time_usec - self.state_time > self.cfg.max_time_jump_s * 1e6:
             log.dropped["time_jump"] += 1
             return
+        home = self.home
+        if home is None:  # home is this position, if it is a valid state at all
+            home = wire.Home(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
         try:
-            new = wire.state_from_hil_state_quaternion(msg, self.cfg.home)
+            new = wire.state_from_hil_state_quaternion(msg, home)
         except wire.BadState as e:
             # never flown on, logged or sent to the ground station; its step is still answered (see
             # on_sensor), and the link-loss timer keeps running
             log.dropped[f"state_{e.reason}"] += 1
             self.bad_time, self.bad_at = msg.time_usec, time.monotonic()
             return
+        if self.home is None:
+            self.home = home
+            if self.gcs is not None:
+                self.gcs.home = home
+        if self.fixed is None:  # hold the first valid position
+            self.fixed = self.target = new[0:3].copy()
         self.state = new
         self.state_time = msg.time_usec
         self.last_state_at = time.monotonic()
@@ -355,41 +439,107 @@ class _Flight:
         if t_us <= self.last_sensor_time or (t_us != self.state_time and not blind):
             log.dropped["sensor_without_state"] += 1
             return
+        if self.first_us is None:
+            self.first_us = t_us
+        elif t_us - self.last_sensor_time <= self.cfg.max_time_jump_s * 1e6:
+            self.step_us = t_us - self.last_sensor_time
         self.last_sensor_time = t_us
         self.received += 1
-        k = log.steps
-        target, target_vel = (self.fixed, None) if self.targets is None else self.targets(k)
-        fresh = t_us == self.state_time
-        if fresh:
-            s = (self.estimate if self.estimate_time == t_us else state).copy()
-            s[9:12] = wire.gyro_from_hil_sensor(msg)
-            obs = build_observation(s[None], target, target_vel)[0]
-            cmd = monitor.act(obs)
-        else:
+        commander = self.commander
+        if commander is not None and self.gcs is not None:  # the ground station's commands, before the setpoint
+            self._log_texts(self.gcs.serve(t_us * 1e-6), t_us * 1e-6)
+        tick = not blind and (self.next_tick_us is None or t_us >= self.next_tick_us - TICK_TOLERANCE_US)
+        if blind and not self.motors_on:
+            cmd = self.held = IDLE  # motors off stay off: a dropped state is no reason to spin them
+            self.held_source = "idle"
+        elif blind:
             # this step's state was dropped: the step is still answered, once (a lockstep peer waits
             # for it), with the monitor's blind hover command, as for any observation it cannot trust
-            cmd = monitor.blind("state_dropped")
-        self.mav.hil_actuator_controls_send(**wire.actuator_controls_fields(cmd, t_us, True, self.cfg.lockstep))
+            cmd = self.held = monitor.blind("state_dropped")
+            self.held_source = monitor.source
+        elif tick:
+            s = (self.estimate if self.estimate_time == t_us else state).copy()
+            s[9:12] = wire.gyro_from_hil_sensor(msg)
+            run = True
+            if commander is not None:
+                sp = self._command(s, t_us)
+                target, target_vel = sp.position, (sp.velocity if self.track else None)
+                run = sp.armed and sp.motors_enabled
+                if run and not self.motors_on:
+                    monitor.reset()  # a new flight for the policy: its state cleared, a hand-over undone
+                self.held_armed, self.motors_on = sp.armed, run
+            elif self.targets is None:
+                target, target_vel = self.fixed, None
+            else:  # the target at this simulated time, in the policy's steps
+                target, target_vel = self.targets(round((t_us - self.first_us) / self.period_us))
+            self.target = target
+            if run:
+                obs = build_observation(s[None], target, target_vel)[0]
+                cmd = self.held = monitor.act(obs)
+                self.held_source = monitor.source
+            else:  # disarmed, or idle on the ground: motors off, the policy not run
+                cmd = self.held = IDLE
+                self.held_source = "idle"
+            nxt = (t_us if self.next_tick_us is None else self.next_tick_us) + self.period_us
+            self.next_tick_us = nxt if nxt > t_us else t_us + self.period_us  # never a burst to catch up
+        else:
+            cmd = self.held  # between two of the policy's ticks: the last command, held
+        fields = wire.actuator_controls_fields(cmd, t_us, self.held_armed, self.cfg.lockstep)
+        self.link.mav.hil_actuator_controls_send(**fields)
         self.link.flush()
+        log.replies += 1
+        log.blind_replies += blind
+        # done after the step that ends `duration_s` (steps k = 0..N-1 of N = duration / step); half a
+        # step of slack for stamps a microsecond off
+        self.done = (t_us - self.first_us) + 1.5 * self.step_us >= self.cfg.duration_s * 1e6
+        if commander is not None:  # a commanded flight ends once flown and disarmed (and heard so)
+            if not (commander.flown and not commander.armed):
+                self.disarmed_at = None
+            elif self.disarmed_at is None:
+                self.disarmed_at = t_us
+            self.done |= self.disarmed_at is not None and t_us - self.disarmed_at >= DISARMED_LINGER_S * 1e6
         if state is None:  # flown blind before any valid state: nothing to log it against
             return
         log.latency_s.append(time.perf_counter() - t_in)
         log.wall.append(t_in)
         log.t.append(t_us * 1e-6)
         log.states.append(state)  # on a blind step the last valid state, what the node knew
-        log.targets.append(target)
+        log.targets.append(self.target)
         log.commands.append(cmd)
-        log.sources.append(monitor.source)
+        log.sources.append(self.held_source)
+        log.ticks.append(tick)
         gcs = self.gcs
         if gcs is not None:
-            if monitor.source != self.source:
-                self.source = monitor.source
+            if self.held_source not in (self.source, "idle"):
+                self.source = self.held_source
                 gcs.statustext(
                     mavlink2.MAV_SEVERITY_WARNING,
                     f"safety: {self.source} flying ({', '.join(sorted(monitor.events)) or 'policy'})",
                 )
-            if fresh:  # telemetry only ever from a state that passed the checks, and new
-                gcs.step(k, state, t_us, True, sum(log.dropped.values()), self.received)
+            if tick and commander is None:  # telemetry only ever from a state that passed the checks, and new
+                gcs.step(self.ticks, state, t_us, True, sum(log.dropped.values()), self.received)
+        if tick:
+            self.ticks += 1
+
+    def _command(self, s: np.ndarray, t_us: int):
+        """One commander step on the state the policy flies on, at simulated time; its messages go to
+        the ground station, its STATUSTEXTs into the log. Returns the setpoint."""
+        c, now = self.commander, t_us * 1e-6
+        if not self.commanded:
+            self.commanded = True
+            if self.cfg.start == "air":
+                c.arm_in_air(s)  # armed, holding here, before the first step: its first heartbeat says so
+        out = c.step(s, self.home, now, 0.0 if self.held is None else collective_thrust(self.held))
+        self._log_texts(out, now)
+        if self.gcs is not None:
+            self.gcs.send(out)
+        return c.setpoint
+
+    def _log_texts(self, msgs, now: float) -> None:
+        for m in msgs:
+            if m.get_type() == "STATUSTEXT":
+                text = m.text.decode(errors="replace") if isinstance(m.text, bytes) else str(m.text)
+                self.log.events.append((round(now, 3), text.rstrip("\x00")))
 
     def on_odometry(self, msg) -> None:
         """ODOMETRY: the estimator's state for a step, flown on instead of the ground truth."""
@@ -417,11 +567,14 @@ class _Flight:
 
 def episode_summary(log: EpisodeLog, control_period_s: float, task: str = "hover") -> dict:
     """Success and errors of one flight with the project's one definition (`core.mission.judge`,
-    the same as the training evaluation's); a failsafe is never a success. `dropped`: what the
-    node refused, by reason (EpisodeLog.dropped)."""
+    the same as the training evaluation's); a failsafe is never a success. The log holds one entry
+    per simulator step: it is judged at the simulator's step as measured (`EpisodeLog.step_s`),
+    `control_period_s` when fewer than two steps were flown. `dropped`: what the node refused, by
+    reason (EpisodeLog.dropped)."""
     from quadpilot.core.mission import judge
 
-    out = judge(task, np.asarray(log.states), np.asarray(log.targets), control_period_s)
+    dt = log.step_s if math.isfinite(log.step_s) else control_period_s
+    out = judge(task, np.asarray(log.states), np.asarray(log.targets), dt)
     out["success"] = bool(out["success"] and log.failsafe is None)
     out["dropped"] = dict(log.dropped)  # packets and states refused, by reason
     return out

@@ -1,0 +1,371 @@
+"""quad-sitl's node side: `--node-only`, the node alone flying a policy file against a simulator that
+speaks PX4's Simulator MAVLink API (our own `quad-sitl --sim-only`, RotorPy's PX4Multirotor, PX4's
+Gazebo plugins), one flight per run; and the summary of the episodes quad-sitl flies against its own
+simulator (`summarise`, `print_summary`).
+
+    quad-sitl POLICY --node-only --connect tcp:HOST:PORT [--home LAT,LON,ALT] [--target E,N,U]
+              [--duration S] [--trace OUT.csv] [--json OUT]
+
+- Home (the local frame's origin) is the first valid position the simulator reports, unless
+  `--home` gives it; `--target` is metres East, North, Up from home, by default the first valid
+  position (hold where the flight starts).
+- The node's own rules (`runtime.node`): HEARTBEAT first, then at 1 Hz; one HIL_ACTUATOR_CONTROLS
+  per simulator step; the simulator's MAVLink version; body rates from HIL_SENSOR; the policy at
+  its trained rate on simulated time, its command held in between.
+- It flies `--duration` seconds of simulated time and prints one line: steps, the steps that fell
+  back to the safety monitor's fallback and why, the error to the target (last 2 s and final), the
+  yaw rate, the reply latency. Exit 1 with a one-line reason when more than `MAX_FALLBACK_FRACTION`
+  of the steps fell back, when the flight ended early (failsafe), or when nothing was flown.
+
+Success is not judged here: the node does not know where the simulator's ground is (a crash), and
+a foreign airframe may hold a point a few centimetres off; the figures are printed and written
+(`--json`, `--trace`) for the caller to judge.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+MAX_FALLBACK_FRACTION = 0.10
+"""More than this share of the steps flown by the fallback (or blind) fails the run (exit 1)."""
+MAX_TARGET_M = 1000.0
+"""m, largest |component| of --target: the safety monitor refuses a larger position error as no
+state at all (`runtime.safety.ObservationLimits.pos_error`)."""
+MAX_ALT_M = 2_147_483.0
+"""m, largest |altitude| of --home: HIL_STATE_QUATERNION's int32 millimetres."""
+LATE_REPLY_S = 0.01
+"""s: a reply later than this misses RotorPy's PX4Multirotor step, which waits 10 ms for it and
+then applies zero motors (rotorpy/vehicles/px4_multirotor.py, `_fetch_latest_px4_control`)."""
+LINK_TIMEOUT_S = 1.0
+"""s of host time without a state before the node's failsafe: a foreign simulator need not keep real
+time (RotorPy's PX4Multirotor integrates each step with scipy's Radau, 5 to 15 ms of CPU for a 4 ms
+step, and more on a loaded machine), so not the 0.1 s the node allows our own simulator."""
+JUDGED_WINDOW_S = 2.0
+"""s at the end of the flight the error and the yaw rate are averaged over (`core.mission`'s window)."""
+NOT_A_REASON = {"fallback_steps", "blind_steps", "fallback_engaged", "command_clamped"}
+"""SafetyMonitor.events counters that count, rather than explain, a fallback."""
+FLAGS = ("--home", "--target", "--trace")
+COMMANDED_DURATION_S = 600.0
+"""s, the default cap of a commanded flight (`--start landed`), which otherwise ends when the vehicle
+has flown, landed and been disarmed."""
+LOCKSTEP_COMMANDED_WARNING = (
+    "quad-sitl: warning: --start landed in lockstep: simulated time, which the commander's timeouts "
+    "(COM_DL_LOSS_T, COM_DISARM_PRFLT) run on, goes faster than a ground station's; add --realtime for "
+    "MAVSDK, QGroundControl or MAVProxy"
+)
+NOT_FLOWN_BY_FALLBACK = ("policy", "idle")
+"""Step sources that are not the fallback: the policy, and motors off while disarmed or idle."""
+
+
+def commanded(args) -> bool:
+    """quad-sitl answers a ground station's commands (`--start landed`: only commands can fly it)."""
+    return getattr(args, "start", None) == "landed"
+
+
+def _numbers(text: str, what: str, example: str) -> list[float]:
+    parts = text.split(",")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        values = []
+    if len(parts) != 3 or len(values) != 3:
+        raise argparse.ArgumentTypeError(f"expected {what}, e.g. {example}; got {text!r}")
+    if not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected finite numbers ({what}), got {text!r}")
+    return values
+
+
+def home_type(text: str):
+    """--home LAT,LON,ALT: degrees north, degrees east, metres above mean sea level."""
+    from quadpilot.link.wire import Home
+
+    lat, lon, alt = _numbers(text, "LAT,LON,ALT (degrees, degrees, metres above sea level)", "47.397742,8.545594,488")
+    if not -90.0 < lat < 90.0:
+        raise argparse.ArgumentTypeError(f"latitude {lat:g} is outside (-90, 90) degrees in {text!r}")
+    if not -180.0 <= lon <= 180.0:
+        raise argparse.ArgumentTypeError(f"longitude {lon:g} is outside [-180, 180] degrees in {text!r}")
+    if not abs(alt) <= MAX_ALT_M:
+        raise argparse.ArgumentTypeError(f"altitude {alt:g} m is beyond ±{MAX_ALT_M:,.0f} m in {text!r}")
+    return Home(lat, lon, alt)
+
+
+home_type.__name__ = "home"
+
+
+def target_type(text: str) -> tuple[float, float, float]:
+    """--target E,N,U: metres East, North, Up from home."""
+    values = _numbers(text, "E,N,U (metres East, North, Up from home)", "-0.5,0.7,0.3")
+    if not all(abs(v) <= MAX_TARGET_M for v in values):
+        raise argparse.ArgumentTypeError(f"each of E,N,U must be within ±{MAX_TARGET_M:g} m, got {text!r}")
+    return values[0], values[1], values[2]
+
+
+target_type.__name__ = "target"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The flags only --node-only takes."""
+    g = p.add_argument_group("--node-only (against any PX4-API simulator)")
+    g.add_argument(
+        "--home",
+        type=home_type,
+        metavar="LAT,LON,ALT",
+        help="Origin of the local frame (degrees, degrees, metres above sea level). Default: the first "
+        "valid position the simulator reports.",
+    )
+    g.add_argument(
+        "--target",
+        type=target_type,
+        metavar="E,N,U",
+        help="Where to hover, metres East, North, Up from home. Default: hold the start position.",
+    )
+    g.add_argument("--trace", type=Path, metavar="OUT.csv", help="Write one CSV row per simulator step.")
+
+
+def misused(args) -> str | None:
+    """Why the flags do not go together (one line), or None."""
+    if commanded(args) and args.gcs.lower() == "none":
+        return "--start landed waits for a ground station's commands; --gcs none leaves it without one"
+    if commanded(args) and args.min_success > 0:
+        return "--min-success: a commanded flight has no success criterion of its own; read its --json"
+    if not args.node_only:
+        given = [f for f in FLAGS if getattr(args, f[2:]) is not None]
+        return f"{', '.join(given)}: for --node-only" if given else None
+    if args.episodes is not None and args.episodes != 1:
+        return f"--episodes {args.episodes}: --node-only flies one flight per run"
+    if args.listen is not None:
+        return "--listen: --node-only starts no simulator; give its address with --connect"
+    if args.min_success > 0:
+        return "--min-success: --node-only does not judge success (it knows no ground); read its --json"
+    return None
+
+
+def flight_summary(log, monitor, policy_period_s: float) -> dict:
+    """What the run prints and writes to --json (see the module docstring)."""
+    states = np.asarray(log.states, np.float64).reshape(-1, 12)
+    targets = np.asarray(log.targets, np.float64).reshape(-1, 3)
+    step_s = log.step_s
+    fallback = log.replies - log.steps + sum(1 for s in log.sources if s not in NOT_FLOWN_BY_FALLBACK)
+    lat = np.asarray(log.latency_s, np.float64)
+    out: dict = {
+        "steps": int(log.replies),
+        "step_s": step_s,
+        "simulator_rate_hz": 1.0 / step_s if step_s > 0 else math.nan,
+        "policy_rate_hz": 1.0 / policy_period_s,
+        "policy_steps": int(sum(log.ticks)),
+        "sim_time_s": float(log.t[-1] - log.t[0] + step_s) if len(log.t) > 1 else 0.0,
+        "fallback_steps": int(fallback),
+        "fallback_fraction": fallback / log.replies if log.replies else math.nan,
+        "fallback_reasons": {k: int(v) for k, v in sorted(monitor.events.items()) if k not in NOT_A_REASON},
+        "failsafe": log.failsafe,
+        "home": None
+        if log.home is None
+        else {"lat_deg": log.home.lat_deg, "lon_deg": log.home.lon_deg, "alt_m": log.home.alt_m},
+        "target_enu_m": targets[-1].tolist() if len(targets) else None,
+        "error_last_2s_m": math.nan,
+        "final_error_m": math.nan,
+        "mean_abs_yaw_rate_last_2s_radps": math.nan,
+        "yaw_change_deg": math.nan,
+        "reply_latency_p50_us": float(np.percentile(lat, 50) * 1e6) if lat.size else math.nan,
+        "reply_latency_p99_us": float(np.percentile(lat, 99) * 1e6) if lat.size else math.nan,
+        "reply_latency_max_us": float(lat.max() * 1e6) if lat.size else math.nan,
+        "late_replies": int(np.sum(lat > LATE_REPLY_S)),
+        "wall_s": float(log.wall_s),
+        "mavlink_version": int(log.mavlink_version),
+        "packets_dropped": dict(log.dropped),
+        "monitor_events": dict(monitor.events),
+    }
+    if len(states):
+        dist = np.linalg.norm(states[:, 0:3] - targets, axis=1)
+        k = max(1, round(JUDGED_WINDOW_S / step_s)) if step_s > 0 else len(states)
+        out["error_last_2s_m"] = float(dist[-k:].mean())
+        out["final_error_m"] = float(dist[-1])
+        # |r|: the sign does not matter, and a simulator that sends HIL_STATE_QUATERNION's rates in
+        # FLU instead of FRD (RotorPy 3.0.0) flips only the sign of q and r
+        out["mean_abs_yaw_rate_last_2s_radps"] = float(np.abs(states[-k:, 11]).mean())
+        turn = states[-1, 8] - states[0, 8]
+        out["yaw_change_deg"] = float(np.degrees(math.atan2(math.sin(turn), math.cos(turn))))
+    return out
+
+
+def summary_line(s: dict) -> str:
+    """The one line a run prints."""
+    reasons = ", ".join(f"{k} {v}" for k, v in s["fallback_reasons"].items())
+    home = s["home"]
+    where = "no position" if home is None else f"{home['lat_deg']:.7f},{home['lon_deg']:.7f},{home['alt_m']:.3f}"
+    return (
+        f"quad-sitl: {s['steps']:,} steps of {s['step_s'] * 1e3:.2f} ms (policy {s['policy_rate_hz']:.0f} Hz, "
+        f"{s['policy_steps']:,} runs), fallback {s['fallback_steps']} steps"
+        + (f" ({reasons})" if reasons else "")
+        + f", error last 2 s {s['error_last_2s_m'] * 100:.2f} cm, final {s['final_error_m'] * 100:.2f} cm, "
+        f"|yaw rate| {s['mean_abs_yaw_rate_last_2s_radps']:.3f} rad/s, reply p50 {s['reply_latency_p50_us']:.0f} µs "
+        f"p99 {s['reply_latency_p99_us']:.0f} µs, MAVLink {s['mavlink_version']}, home {where}"
+        + (f", failsafe: {s['failsafe']}" if s["failsafe"] else "")
+    )
+
+
+TRACE_COLUMNS = (
+    "t_s", "x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_mps", "roll_rad", "pitch_rad", "yaw_rad",
+    "p_radps", "q_radps", "r_radps", "target_x_m", "target_y_m", "target_z_m",
+    "motor1", "motor2", "motor3", "motor4", "source", "policy_step", "reply_latency_us", "host_time_s",
+)  # fmt: skip
+"""--trace: world ENU, body FLU, SI (the project's frames), as the simulator reported the state; motor
+commands ω/ω_max in actuator output order; policy_step 1 where the policy ran, 0 where it was held;
+host_time_s the host's monotonic clock (time.perf_counter) when the step's HIL_SENSOR was handled,
+to line the node's replies up with a simulator's own timestamps."""
+
+
+def write_trace(log, path: Path) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(TRACE_COLUMNS)
+        for t, s, tgt, cmd, src, tick, lat, wall in zip(
+            log.t, log.states, log.targets, log.commands, log.sources, log.ticks, log.latency_s, log.wall, strict=True
+        ):
+            numbers = (f"{v:.6g}" for v in (*s, *tgt, *cmd))
+            w.writerow([f"{t:.6f}", *numbers, src, int(tick), f"{lat * 1e6:.0f}", f"{wall:.6f}"])
+
+
+def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
+    """One flight against `args.connect`; prints the summary line, writes --json/--trace/--tlog and
+    the pictures (`draw(args, logs, period)`); the exit code."""
+    from quadpilot.core.mission import default_duration_s
+    from quadpilot.runtime import SafetyMonitor
+    from quadpilot.runtime.node import Node, NodeConfig, NodeError
+
+    period = policy.info.control_period_s
+    monitor = SafetyMonitor(policy)
+    gcs = None if args.gcs.lower() == "none" else args.gcs
+    cfg = NodeConfig(
+        connect=args.connect,
+        duration_s=args.duration or default_duration_s("hover"),
+        lockstep=args.lockstep,
+        gcs=gcs,
+        signing_key=key,
+        home=args.home,
+        target=args.target,
+        link_timeout_s=LINK_TIMEOUT_S,
+    )
+    tlog = None
+    try:
+        if args.tlog is not None:
+            from quadpilot.link.tlog import TlogWriter
+
+            tlog = TlogWriter(args.tlog)
+        log = Node(cfg).fly(monitor, tap=None if tlog is None else tlog.tap)
+    except NodeError as e:
+        print(f"quad-sitl: error: {e}", file=sys.stderr)
+        return 1
+    except OSError as e:
+        print(f"quad-sitl: error: {e.filename + ': ' if e.filename else ''}{e.strerror or e}", file=sys.stderr)
+        return 1
+    finally:
+        if tlog is not None:
+            tlog.close()
+    s = flight_summary(log, monitor, period)
+    s.update(mode="node-only", policy=str(policy_path), backend=args.backend, simulator=args.connect)
+    s["home_source"] = "--home" if args.home is not None else "first valid position"
+    print(summary_line(s))
+    for flag, path, write in (
+        ("--json", args.json, lambda p: p.write_text(json.dumps(s, indent=2) + "\n", encoding="utf-8")),
+        ("--trace", args.trace, lambda p: write_trace(log, p)),
+    ):
+        if path is not None:
+            try:
+                write(path)
+            except OSError as e:
+                print(f"quad-sitl: error: {flag} {path}: {e.strerror or e}", file=sys.stderr)
+                return 1
+    code = draw(args, [log], period) if log.steps else 0
+    if not log.replies:
+        return _failed(f"nothing flown: {log.failsafe or 'no step from the simulator'}")
+    if log.failsafe is not None:
+        return _failed(f"the flight ended early after {log.replies:,} steps: failsafe: {log.failsafe}")
+    if s["fallback_fraction"] > MAX_FALLBACK_FRACTION:
+        reasons = ", ".join(f"{k} {v}" for k, v in s["fallback_reasons"].items()) or "no reason recorded"
+        return _failed(
+            f"{s['fallback_steps']:,} of {s['steps']:,} steps ({s['fallback_fraction']:.1%}) fell back ({reasons}): "
+            f"more than {MAX_FALLBACK_FRACTION:.0%}"
+        )
+    return code
+
+
+# --- quad-sitl's summary of episodes flown against its own simulator ------------------------------
+def summarise(logs, period: float, task: str = "hover") -> dict:
+    from quadpilot.runtime.node import episode_summary
+
+    eps = [episode_summary(log, period, task) for log in logs]
+    lat = np.concatenate([np.asarray(log.latency_s) for log in logs]) * 1e6 if logs else np.zeros(0)
+    steps = sum(log.steps for log in logs)
+    wall = sum(log.wall_s for log in logs)
+    dropped: dict[str, int] = {}
+    for log in logs:
+        for k, v in log.dropped.items():
+            dropped[k] = dropped.get(k, 0) + v
+    fallback = sum(sum(1 for s in log.sources if s not in NOT_FLOWN_BY_FALLBACK) for log in logs)
+    finite = [e for e in eps if math.isfinite(e["rms_error_m"])]
+    out = {
+        "episodes": len(eps),
+        "success_rate": float(np.mean([e["success"] for e in eps])) if eps else math.nan,
+        "crashes": int(sum(e["crashed"] for e in eps)),
+        "position_rms_error_m": float(np.mean([e["rms_error_m"] for e in finite])) if finite else math.nan,
+        "mean_error_last_2s_m": float(np.mean([e["mean_error_last_window_m"] for e in finite])) if finite else math.nan,
+        "final_distance_m": float(np.mean([e["final_distance_m"] for e in finite])) if finite else math.nan,
+        "steps": int(steps),
+        "steps_per_s": steps / wall if wall > 0 else math.nan,
+        "control_latency_p50_us": float(np.percentile(lat, 50)) if lat.size else math.nan,
+        "control_latency_p99_us": float(np.percentile(lat, 99)) if lat.size else math.nan,
+        "failsafe_events": sum(1 for log in logs if log.failsafe),
+        "fallback_steps": int(fallback),
+        "telemetry_messages": int(sum(log.telemetry_sent for log in logs)),
+        "packets_dropped": dropped,
+        "per_episode": eps,
+    }
+    if task == "circle" and finite:
+        out["radial_rms_m"] = float(np.mean([e["radial_rms_m"] for e in finite]))
+        out["speed_error_mps"] = float(np.mean([e["speed_error_mps"] for e in finite]))
+    return out
+
+
+def print_summary(s: dict, policy: Path) -> None:
+    print(f"quad-sitl: {policy} — {s['episodes']} episodes, {s['steps']:,} steps at {s['steps_per_s']:,.0f} steps/s")
+    print(f"  success rate            {s['success_rate']:.0%}   crashes {s['crashes']}")
+    print(
+        f"  position error          RMS {s['position_rms_error_m'] * 100:.2f} cm, last 2 s mean "
+        f"{s['mean_error_last_2s_m'] * 100:.2f} cm, final {s['final_distance_m'] * 100:.2f} cm"
+    )
+    if "radial_rms_m" in s:
+        print(
+            f"  circle (second lap)     radial RMS {s['radial_rms_m'] * 100:.2f} cm, "
+            f"speed error {s['speed_error_mps'] * 100:.2f} cm/s"
+        )
+    print(
+        f"  control-loop latency    p50 {s['control_latency_p50_us']:.0f} µs, p99 {s['control_latency_p99_us']:.0f} µs"
+    )
+    dropped = ", ".join(f"{k} {v}" for k, v in sorted(s["packets_dropped"].items())) or "none"
+    print(f"  failsafes {s['failsafe_events']}, fallback steps {s['fallback_steps']}, packets dropped: {dropped}")
+    for c in s.get("commanded", []):
+        gcs_dropped = ", ".join(f"{k} {v}" for k, v in sorted(c["gcs_dropped"].items())) or "none dropped"
+        end = "never disarmed after flying" if c["disarmed_at_s"] is None else f"disarmed at {c['disarmed_at_s']:.1f} s"
+        armed = "armed" if c["armed"] else "disarmed"
+        print(
+            f"  commanded flight        {c['landed_state']}, {armed}, mode {c['mode']}, {end}; "
+            f"{c['gcs_messages']:,} ground-station messages ({gcs_dropped})"
+        )
+
+
+def commanded_summary(logs) -> list[dict]:
+    """Per commanded episode: the commander at the end (`EpisodeLog.commander`) and its STATUSTEXTs."""
+    return [{**(log.commander or {}), "events": [[t, text] for t, text in log.events]} for log in logs]
+
+
+def _failed(reason: str) -> int:
+    print(f"quad-sitl: {reason}", file=sys.stderr)
+    return 1

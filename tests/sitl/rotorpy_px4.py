@@ -1,0 +1,102 @@
+"""RotorPy's PX4 simulator, driven the way RotorPy's own users drive it, in a process of its own (its
+10 ms wait for the autopilot's answer must not share a GIL with anything):
+
+    python rotorpy_px4.py PORT RATE_HZ STEPS OUT.json [--mavlink 1|2] [--seed N]
+
+`rotorpy.vehicles.px4_multirotor.PX4Multirotor` with RotorPy's PX4 SIH quad-X parameters
+(`px4_sihsim_quadx_params`, PX4's 10040_sihsim_quadx airframe), 5 m up, level, at rest, rotors at
+rest. It listens on tcp 127.0.0.1:PORT, waits (in its constructor) for the autopilot's HEARTBEAT,
+then loops `state = vehicle.step(state, control, 1 / RATE_HZ)` STEPS times: each step sends
+HIL_STATE_QUATERNION and HIL_SENSOR and waits up to 10 ms for one HIL_ACTUATOR_CONTROLS, else flies
+the step on zero motors.
+
+What it measures, without touching RotorPy's code path: the connection's `recv_match` is wrapped to
+record what RotorPy's step got back and how long it waited. OUT.json holds per step the time_usec
+RotorPy stamped the step's messages with, the ground truth after the step (RotorPy's world ENU,
+body FLU: position, velocity, quaternion x, y, z, w, body rates, rotor speeds), the reply's
+time_usec (None: no reply within the 10 ms, the step flew on zero motors), the wait, and when the
+step's HIL_SENSOR left (time.perf_counter(), the host's CLOCK_MONOTONIC on Linux: the node's --trace
+`host_time_s` is on the same clock); then how many HIL_ACTUATOR_CONTROLS were still queued after the
+last step (a second reply to some step).
+
+`--mavlink 2` sets MAVLINK20 before pymavlink is imported: RotorPy's connection then speaks MAVLink 2
+(pymavlink's mavutil picks its dialect at import; without it, MAVLink 1 until a MAVLink 2 byte
+arrives first).
+"""
+
+import argparse
+import json
+import os
+import time
+
+args = argparse.ArgumentParser()
+args.add_argument("port", type=int)
+args.add_argument("rate_hz", type=float)
+args.add_argument("steps", type=int)
+args.add_argument("out")
+args.add_argument("--mavlink", type=int, choices=(1, 2), default=1)
+args.add_argument("--seed", type=int, default=0)
+args = args.parse_args()
+if args.mavlink == 2:
+    os.environ["MAVLINK20"] = "1"
+else:
+    os.environ.pop("MAVLINK20", None)
+
+import numpy as np  # noqa: E402
+from rotorpy.vehicles.px4_multirotor import PX4Multirotor  # noqa: E402
+from rotorpy.vehicles.px4_sihsim_quadx_params import quad_params  # noqa: E402
+
+np.random.seed(args.seed)  # noqa: NPY002 - RotorPy's IMU noise draws from NumPy's global generator
+START = {
+    "x": np.array([0.0, 0.0, 5.0]),
+    "v": np.zeros(3),
+    "q": np.array([0.0, 0.0, 0.0, 1.0]),
+    "w": np.zeros(3),
+    "wind": np.zeros(3),
+    "rotor_speeds": np.zeros(4),
+}
+vehicle = PX4Multirotor(quad_params, initial_state=START, mavlink_url=f"tcpin:127.0.0.1:{args.port}")
+got: dict = {}
+recv_match = vehicle.conn.recv_match
+
+
+def watched_recv_match(*a, **kw):
+    t0 = time.perf_counter()  # the step's HIL_SENSOR has just been sent
+    msg = recv_match(*a, **kw)
+    got["wait_s"], got["msg"], got["sent_s"] = time.perf_counter() - t0, msg, t0
+    return msg
+
+
+vehicle.conn.recv_match = watched_recv_match
+dt = 1.0 / args.rate_hz
+state = {k: v.copy() for k, v in START.items()}
+control = {"cmd_motor_speeds": np.zeros(4)}  # unused: the autopilot's command replaces it
+rows = []
+wall0 = time.perf_counter()
+for _ in range(args.steps):
+    t_us = int(vehicle.t * 1e6)  # what PX4Multirotor.step stamps this step's messages with
+    got.clear()
+    state = vehicle.step(state, control, dt)
+    msg = got.get("msg")
+    rows.append(
+        {
+            "t_us": t_us,
+            "x": state["x"].tolist(),
+            "v": state["v"].tolist(),
+            "q": state["q"].tolist(),
+            "w": state["w"].tolist(),
+            "rotor_speeds": state["rotor_speeds"].tolist(),
+            "reply_t_us": None if msg is None else int(msg.time_usec),
+            "reply_version": None if msg is None else (1 if msg.get_msgbuf()[0] == 0xFE else 2),
+            "reply_armed": None if msg is None else bool(msg.mode & 128),
+            "wait_s": got.get("wait_s"),
+            "sensor_sent_s": got.get("sent_s"),
+        }
+    )
+wall = time.perf_counter() - wall0
+time.sleep(0.3)  # anything still on its way
+extra = 0
+while recv_match(type="HIL_ACTUATOR_CONTROLS", blocking=False) is not None:
+    extra += 1
+with open(args.out, "w", encoding="utf-8") as f:
+    json.dump({"dt": dt, "start": START["x"].tolist(), "wall_s": wall, "extra_replies": extra, "steps": rows}, f)
