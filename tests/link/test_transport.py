@@ -1,5 +1,6 @@
 """link.transport without a simulator: signing rules, the lock-out fix, batch parsing, UDP pinning."""
 
+import ipaddress
 import socket
 import time
 
@@ -214,3 +215,35 @@ def test_a_link_speaks_mavlink2_unless_asked_and_a_signed_link_cannot_follow_its
     finally:
         link.close()
         theirs.close()
+
+
+def _own_address() -> str:
+    """This machine's non-loopback IPv4 address (it stands in for another host)."""
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.connect(("192.0.2.254", 9))  # no packet is sent: this only picks the outgoing interface
+        return probe.getsockname()[0]
+    finally:
+        probe.close()
+
+
+def test_a_udp_link_to_another_host_is_not_bound_to_loopback():
+    """A socket bound to 127.0.0.1 cannot send to another host (the kernel delivers it only on the
+    loopback interface), so a ground station or simulator elsewhere would hear nothing, silently.
+    The link binds to loopback only for a loopback peer."""
+    host = _own_address()
+    assert not ipaddress.ip_address(host).is_loopback, "no non-loopback address to stand in for another host"
+    for peer, want_loopback in ((host, False), ("127.0.0.1", True)):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as listener:
+            listener.bind((peer, 0))
+            listener.settimeout(2.0)
+            link = transport.connect(f"udp:{peer}:{listener.getsockname()[1]}", 1, 1)
+            try:
+                bound = link.port.getsockname()[0]
+                link.mav.heartbeat_send(6, 8, 0, 0, 4)
+                link.flush()
+                data, _ = listener.recvfrom(4096)
+            finally:
+                link.close()
+        assert ipaddress.ip_address(bound).is_loopback == want_loopback, (peer, bound)
+        assert data[0] in (0xFD, 0xFE)  # and a MAVLink frame arrived

@@ -29,6 +29,7 @@ from __future__ import annotations
 import errno
 import hashlib
 import hmac
+import ipaddress
 import select
 import socket
 import time
@@ -516,7 +517,12 @@ def connect(address: str | Address, system: int, component: int, timeout_s: floa
     if a.protocol == "udp":
         family, _, _, _, sockaddr = socket.getaddrinfo(a.host, a.port, socket.AF_UNSPEC, socket.SOCK_DGRAM)[0]
         sock = socket.socket(family, socket.SOCK_DGRAM)
-        sock.bind(("127.0.0.1" if family == socket.AF_INET else "::1", 0))
+        # A socket bound to loopback cannot reach another host, so bind to loopback only for a
+        # loopback peer; otherwise to every interface (the link still takes datagrams only from
+        # its peer: `DatagramLink` drops and counts the rest).
+        loopback = ipaddress.ip_address(sockaddr[0]).is_loopback
+        v4 = family == socket.AF_INET
+        sock.bind((("127.0.0.1" if v4 else "::1") if loopback else ("0.0.0.0" if v4 else "::"), 0))
         return DatagramLink(sock, str(a), system, component, peer=sockaddr)
     deadline = time.monotonic() + timeout_s
     while True:
