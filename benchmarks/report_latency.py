@@ -7,7 +7,7 @@ eager on the same network in the same run (ratio of p50), and whether the export
 are met: MLP p50 ≤ 8 µs and p99 ≤ 20 µs on the faster monitored NumPy / ONNX Runtime backend
 (validation included) and ≥ 5× faster than torch eager; LSTM monitored step p50 ≤ 25 µs.
 
-Then the C kernel (issue 8): its own latency from the timing loop in C (median of the repeats),
+Then the C kernel: its own latency from the timing loop in C (median of the repeats),
 the ctypes call overhead (the `ctypes_c` p50 minus that), what the c backend's `Policy.act` and the
 safety monitor add on top, the target (MLP kernel ≤ 1 µs), and the Cortex-M4F estimate from the
 operation count (`quadpilot.runtime.cgen.cortex_m4_estimate`; its assumptions are documented in

@@ -1,4 +1,4 @@
-"""What domain randomisation (issue 7) costs the vector environment, measured in one run against
+"""What domain randomisation costs the vector environment, measured in one run against
 the same environment without it (DESIGN.md, style rule 10).
 
     QuadVectorEnv("hover") on N drones (128: the training default; 4096), randomization None,

@@ -16,7 +16,7 @@ _PATH = r"(?:src|tests|benchmarks|docs)/[\w./-]*?\.py"
 FILE_RE = re.compile(rf"(?<![\w./-])({_PATH})(?![\w])")
 REF_RE = re.compile(rf"(?<![\w./-])({_PATH})::([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)")
 
-# The core components the walkthrough must explain (issue 6).
+# The core components the walkthrough must explain.
 REQUIRED_REFS = {
     "src/quadpilot/train/gae.py::compute_gae",
     "src/quadpilot/train/ppo.py::PPO.collect",

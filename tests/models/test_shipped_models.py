@@ -1,8 +1,8 @@
-"""The reference policies shipped in models/ still meet their success bars (the PPO issue):
+"""The reference policies shipped in models/ still meet their success bars:
 hover success ≥ 95 %; waypoint at the 2 m stage success ≥ 95 % with mean final distance ≤ 5 cm;
 circle radial RMS ≤ 5 cm and speed error ≤ 0.1 m/s after the first lap. The randomised hover
-policy (issue 7) ≥ 95 % on the nominal plant and on the perturbed grid's hardest corners. The
-recurrent hover policy (issue 7) ≥ 95 % under the sensor noise and motor lag it was trained with,
+policy ≥ 95 % on the nominal plant and on the perturbed grid's hardest corners. The
+recurrent hover policy ≥ 95 % under the sensor noise and motor lag it was trained with,
 flown in quad-sitl with the noise on, and its ONNX file runs with explicit LSTM state.
 
 Short evaluations (fewer episodes than the 100 of eval.json, other start seeds) so the default test
@@ -61,7 +61,7 @@ def test_each_model_folder_says_how_it_was_made(folder):
     assert (MODELS / folder / "policy.pt").stat().st_size < 512 * 1024  # small, deliberate files
 
 
-# --- issue 7: the randomised hover policy -----------------------------------------------------
+# --- the randomised hover policy -----------------------------------------------------
 
 
 @pytest.mark.parametrize(

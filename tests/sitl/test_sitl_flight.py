@@ -146,7 +146,7 @@ def test_min_success_fails_a_flight_below_the_bar_and_passes_one_above(tmp_path,
 
 def test_quad_sitl_passes_perturbations_to_the_simulator(tmp_path, capsys):
     """A heavier vehicle with weaker motors sags below the target: the flags reached the plant (the
-    nominal hover policy has no integral action; domain randomisation is issue 7's subject)."""
+    nominal hover policy has no integral action; domain randomisation is docs/robustness.md's subject)."""
     out = tmp_path / "heavy.json"
     assert (
         main(

@@ -1,4 +1,4 @@
-"""The shipped domain-randomised hover policy (issue 7) flown by quad-sitl on the perturbed
+"""The shipped domain-randomised hover policy flown by quad-sitl on the perturbed
 plant where the nominal policy sags 18 cm: mass ×1.15, k_f ×0.92, 1 m/s wind."""
 
 import json

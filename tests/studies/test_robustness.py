@@ -1,4 +1,4 @@
-"""The robustness harness (issue 7): the scenario runner reproduces `evaluate` for a policy, flies
+"""The robustness harness (docs/robustness.md): the scenario runner reproduces `evaluate` for a policy, flies
 a trivial controller exactly as the physics says, measures settling and overshoot correctly, and
 the grid cells are the plants quad-sitl's flags make."""
 

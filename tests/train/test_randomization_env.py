@@ -1,4 +1,4 @@
-"""Domain randomisation in the training environment (issue 7): a preset by name, plants redrawn
+"""Domain randomisation in the training environment: a preset by name, plants redrawn
 for exactly the drones that reset and within range, the same plants for the same seed, the
 nominal environment bit for bit when it is off, a resumed run that continues bit for bit, and the
 quad-train flag."""

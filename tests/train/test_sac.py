@@ -1,4 +1,4 @@
-"""SAC (issue 7): the maths against references (the tanh-squashed log-probability against a numerical
+"""SAC: the maths against references (the tanh-squashed log-probability against a numerical
 density, the Polyak update, the temperature's direction, the twin critics against two plain MLPs),
 the replay buffer's truncation handling and ring, and `quad-train --algo sac` end to end: its files,
 a bit-exact resume (replay buffer included), a torn checkpoint, clear refusals, and its policy.pt

@@ -1,0 +1,137 @@
+"""Policies flown by `quad-sitl --node-only` in RotorPy's PX4 simulator (rotorpy 3.0.0 PX4Multirotor with
+PX4's SIH quad-X parameters), kept as data for docs/airframes.md.
+
+    .venv/bin/python benchmarks/rotorpy_flights.py run docs/bench/rotorpy_flights.json   # about a minute
+
+Each flight is run exactly as tests/sitl/test_rotorpy.py runs it (its `fly`: tests/sitl/rotorpy_px4.py
+and quad-sitl in two processes over loopback TCP, RotorPy 5 m up with its rotors at rest, home from the
+first fix). Stored per flight: the policy, rate, MAVLink version, the commands, steps and missed steps
+(on RotorPy's side of the wire: no answer within its 10 ms, or the previous step's answer), and from
+RotorPy's ground truth over the last 2 s: the mean distance to the target, the mean height error, the
+mean |yaw rate| and the heading change from the start (yaw from RotorPy's quaternion, scalar-last
+x, y, z, w, world ENU, positive counter-clockwise seen from above).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import importlib.util
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SIH_POLICY = ROOT / "docs/bench/rotorpy_sih_hover.onnx"
+SIH_TRAINED_BY = "quad-train --task hover --vehicle px4_sih_quadx --init-rotor random --seed 0 --out runs/sih1"
+SIH_TRAINED_STEPS = 1_007_616  # global_step of that run's eval.json (the policy exported from it)
+SIH_TARGET = (0.6, -0.5, 0.55)  # m East, North, Up from home
+
+
+def _load_test_module():
+    """tests/sitl/test_rotorpy.py, for its `fly` and `RotorPyFlight`: one way to fly RotorPy."""
+    spec = importlib.util.spec_from_file_location("rotorpy_flight_test", ROOT / "tests/sitl/test_rotorpy.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def yaw_enu(q: np.ndarray) -> np.ndarray:
+    """Yaw (rad, about world Up) of quaternions given scalar-last (x, y, z, w), as RotorPy stores them."""
+    x, y, z, w = q.T
+    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def measure(t, case, rotorpy: dict, summary: dict) -> dict:
+    rows = rotorpy["steps"]
+    k = round(t.WINDOW_S * case.rate_hz)
+    x = np.array([r["x"] for r in rows])
+    target = np.array([0.0, 0.0, t.START_UP_M])
+    if case.target is not None:  # the node's metres on RotorPy's Earth (see test_rotorpy.py)
+        scale = t.ROTORPY_EARTH_RADIUS_M / t.EARTH_RADIUS_M
+        target += np.array(case.target) * np.array([scale, scale, 1.0])
+    # the start is level, facing East (rotorpy_px4.py's START q = (0, 0, 0, 1)): yaw 0
+    yaw = np.unwrap(yaw_enu(np.array([[0.0, 0.0, 0.0, 1.0]] + [r["q"] for r in rows])))
+    turned = np.degrees(yaw[1:] - yaw[0])[-k:]  # unwrapped: how far it turned, laps included
+    heading = (turned + 180.0) % 360.0 - 180.0  # the heading's difference from the start, (-180, 180]
+    return {
+        "policy": str(case.policy.relative_to(ROOT)),
+        "rate_hz": case.rate_hz,
+        "mavlink": case.mavlink,
+        "duration_s": case.duration_s,
+        "target_enu_m": list(case.target) if case.target is not None else None,
+        "steps": len(rows),
+        "missed_steps": sum(r["reply_t_us"] != r["t_us"] for r in rows),
+        "no_reply_steps": sum(r["reply_t_us"] is None for r in rows),
+        "extra_replies": rotorpy["extra_replies"],
+        "error_last_2s_m": float(np.linalg.norm(x[-k:] - target, axis=1).mean()),
+        "height_error_last_2s_m": float(np.mean(x[-k:, 2] - target[2])),
+        "mean_abs_yaw_rate_last_2s": float(np.abs(np.array([r["w"] for r in rows])[-k:, 2]).mean()),
+        "turned_last_2s_deg": {"mean": float(turned.mean()), "min": float(turned.min()), "max": float(turned.max())},
+        "heading_change_last_2s_deg": {
+            "mean": float((turned.mean() + 180.0) % 360.0 - 180.0),
+            "min": float(heading.min()),
+            "max": float(heading.max()),
+        },
+        "node": summary,
+    }
+
+
+def run(out: Path) -> dict:
+    t = _load_test_module()
+    flights = {
+        "hover_100hz": t.RotorPyFlight(t.SHIPPED_HOVER, 100, 1, max_error_m=0.10),
+        "hover_250hz": t.RotorPyFlight(t.SHIPPED_HOVER, 250, 2, max_error_m=0.10),
+        "sih_target_100hz": t.RotorPyFlight(SIH_POLICY, 100, 1, max_error_m=0.05, duration_s=8.0, target=SIH_TARGET),
+    }
+    data = {
+        "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "command": "benchmarks/rotorpy_flights.py run " + str(out),
+        "machine": {"processor": platform.processor(), "cpus": os.cpu_count(), "python": platform.python_version()},
+        "commit": subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip(),
+        "sih_policy": {
+            "file": str(SIH_POLICY.relative_to(ROOT)),
+            "trained_by": SIH_TRAINED_BY,
+            "global_step": SIH_TRAINED_STEPS,
+            "onnx_bytes": SIH_POLICY.stat().st_size,
+        },
+        "flights": {},
+    }
+    for name, case in flights.items():
+        load_before = os.getloadavg()[0]
+        with tempfile.TemporaryDirectory() as tmp:
+            rotorpy, summary, _, node = t.fly(case, Path(tmp))
+        if node.returncode != 0:
+            print(f"{name}: quad-sitl exited {node.returncode}: {node.stderr.strip()}", file=sys.stderr)
+        row = measure(t, case, rotorpy, summary)
+        row["node_returncode"] = node.returncode
+        # missed steps depend on the host: RotorPy's own process must run within its 10 ms wait
+        row["load_1min"] = {"before": load_before, "after": os.getloadavg()[0]}
+        data["flights"][name] = row
+        print(
+            f"{name}: {row['steps']} steps, missed {row['missed_steps']}, error {row['error_last_2s_m'] * 100:.2f} cm "
+            f"(height {row['height_error_last_2s_m'] * 100:+.2f} cm), |yaw rate| {row['mean_abs_yaw_rate_last_2s']:.3f}"
+            f" rad/s, heading {row['heading_change_last_2s_deg']['mean']:+.1f}° "
+            f"(turned {row['turned_last_2s_deg']['mean']:+.1f}°)"
+        )
+    out.write_text(json.dumps(data, indent=1) + "\n")
+    return data
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("run").add_argument("out", type=Path)
+    args = p.parse_args(argv)
+    run(args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
