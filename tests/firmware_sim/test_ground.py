@@ -285,24 +285,43 @@ def test_a_landed_start_over_the_wire_rests_on_the_ground_reading_g_then_lifts_o
     assert not rec.crashed and rec.steps == 151
 
 
-@pytest.mark.parametrize("start", ["air", "landed"])
-def test_touching_the_ground_is_a_crash_only_for_a_flight_started_in_the_air(start):
-    """The ground holds the drone at z = 0, so the old "below ground" rule can no longer fire: a
-    flight started in the air that falls onto the ground must still count as crashed, while a landed
-    start, which rests on the ground by design, must not."""
-    kw = {"initial_state": np.array([0, 0, 0.3, 0, 0, 0, 0, 0, 0, 0, 0, 0.0])} if start == "air" else {}
+def fly_held(start: str, z0: float, controls: np.ndarray, steps: int):
+    """One episode started `start` (in the air: at rest `z0` m up) with `controls` held for `steps`
+    steps by a pymavlink peer; (the simulator's episode record, the vehicle's last state)."""
+    kw = {"initial_state": np.array([0, 0, z0, 0, 0, 0, 0, 0, 0, 0, 0, 0.0])} if start == "air" else {}
     cfg = SimConfig(listen="tcp:127.0.0.1:0", episodes=1, lockstep_timeout_s=2.0, start=start, **kw)
     with serving(cfg) as (port, result):
         c = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=1, source_component=1)
         c.mav = new_codec(c, 1, 1)
         c.mav.heartbeat_send(2, 12, 0, 0, 3)
-        for _ in range(60):  # motors off: from 0.3 m the drone is down in about 0.25 s
-            read_step(c)
-            c.mav.hil_actuator_controls_send(**wire.actuator_controls_fields(np.zeros(4), 0, True, True))
+        for _ in range(steps):
+            m = read_step(c)
+            c.mav.hil_actuator_controls_send(**wire.actuator_controls_fields(controls, 0, True, True))
         c.close()
         deadline = time.monotonic() + 5.0
         while "stats" not in result:
             assert time.monotonic() < deadline
             time.sleep(0.01)
     (rec,) = result["stats"].records
+    return rec, wire.state_from_hil_state_quaternion(m["HIL_STATE_QUATERNION"], cfg.home)
+
+
+@pytest.mark.parametrize("start", ["air", "landed"])
+def test_touching_the_ground_is_a_crash_only_for_a_flight_started_in_the_air(start):
+    """The ground holds the drone at z = 0, so the old "below ground" rule can no longer fire: a
+    flight started in the air that falls onto the ground must still count as crashed, while a landed
+    start, which rests on the ground by design, must not."""
+    rec, _ = fly_held(start, 0.3, np.zeros(4), 60)  # motors off: from 0.3 m it is down in about 0.25 s
     assert rec.crashed == (start == "air")
+
+
+def test_a_landed_start_may_fly_beyond_the_flight_area_without_counting_as_a_crash():
+    """A landed start is commanded from a ground station and may be sent anywhere: climbing at full
+    thrust far beyond the 5 m flight area around the episode's target is not a crash there, while
+    the same climb started in the air is (the flight area still applies to scripted flights)."""
+    crashed = {}
+    for start in ("landed", "air"):
+        rec, last = fly_held(start, 0.5, np.ones(4), 300)  # 3 s at full thrust: well over 5 m up
+        assert last[2] > 8.0
+        crashed[start] = rec.crashed
+    assert crashed == {"landed": False, "air": True}

@@ -200,11 +200,18 @@ class Simulator:
         self._io.send_step(link, plant, n, self._sensors)
         if ep.first_crash_step is None:
             s = plant.state[None]
-            # The ground holds the drone at z = 0, so `crashed`'s "below ground" never fires here:
-            # a flight started in the air that touches the ground has crashed (the event z < 0 was
-            # before the ground plane); a landed start rests on it by design.
-            hit_ground = plant.on_ground and self.cfg.start == "air"
-            if hit_ground or crashed(s, s[:, 0:3] - self._target, self._reward)[0]:
+            if self.cfg.start == "air":
+                # The ground holds the drone at z = 0, so `crashed`'s "below ground" never fires
+                # here: a flight started in the air that touches the ground has crashed (the event
+                # z < 0 was before the ground plane).
+                crash = plant.on_ground or crashed(s, s[:, dynamics.POS] - self._target, self._reward)[0]
+            else:
+                # A landed start is a commanded flight: it rests on the ground by design and goes
+                # wherever the ground station sends it, so neither the ground nor the flight area
+                # around the episode's target applies; a tilt beyond the limit still does.
+                roll, pitch, _ = s[0, dynamics.ATT]
+                crash = max(abs(roll), abs(pitch)) > self._reward.max_tilt
+            if crash:
                 ep.first_crash_step = n
         return n
 
