@@ -1,4 +1,4 @@
-"""Measured figures in README.md and docs/*.md come from committed JSON files: this module finds
+"""Measured figures in README.md, docs/*.md and models/README.md come from committed JSON files: this module finds
 them, checks them against their JSON, and rewrites them after a re-measurement.
 
     .venv/bin/python docs/figures.py check            # what tests/docs/test_figures.py checks
@@ -65,8 +65,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def documents(root: Path = ROOT) -> list[Path]:
-    """The Markdown files whose figures are checked: README.md and docs/*.md."""
-    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    """The Markdown files whose figures are checked: README.md, docs/*.md and models/README.md."""
+    return [root / "README.md", *sorted((root / "docs").glob("*.md")), root / "models" / "README.md"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -565,7 +565,7 @@ def check_prose(doc: Path, root: Path = ROOT, text: str | None = None) -> list[s
 
 
 def check(docs: list[Path] | None = None, root: Path = ROOT) -> list[str]:
-    """Every problem of the three kinds, over README.md and docs/*.md (or `docs`)."""
+    """Every problem of the three kinds, over README.md, docs/*.md and models/README.md (or `docs`)."""
     problems = []
     for doc in documents(root) if docs is None else docs:
         text = doc.read_text()

@@ -1,4 +1,4 @@
-"""No hand-typed figure in README.md or docs/*.md: every measured figure is marked with the JSON file
+"""No hand-typed figure in README.md, docs/*.md or models/README.md: every measured figure is marked with the JSON file
 and key it comes from and equals that value as formatted; every generated table equals what its
 report script prints from its JSON; and no number with a unit of measurement stands in prose
 unmarked, unless it is a design constant on docs/figures.py's allow-list. The mechanism, and how to
