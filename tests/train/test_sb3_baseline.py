@@ -15,6 +15,7 @@ import torch
 
 pytest.importorskip("stable_baselines3")
 
+from quadpilot.studies import matched_settings as ms
 from quadpilot.train import evaluate as evaluate_module
 from quadpilot.train import sb3_baseline as sb
 from quadpilot.train.cli import main
@@ -78,6 +79,25 @@ def test_the_sb3_model_gets_every_matched_setting():
     assert all(isinstance(m, torch.nn.ReLU) for m in model.policy.mlp_extractor.policy_net if not linears(m))
     assert torch.allclose(model.policy.log_std, torch.full((4,), -0.7))
     assert model.policy.share_features_extractor and not list(model.policy.features_extractor.parameters())
+
+
+def test_every_ppoconfig_field_has_a_mapping_or_a_stated_difference():
+    """The matched settings, written down (quadpilot.studies.matched_settings): every PPOConfig field
+    has its SB3 parameter or a stated difference, every path it names exists in the settings
+    sb3_settings builds, and the report's table has a row per field."""
+    fields = {f.name for f in dataclasses.fields(PPOConfig)}
+    assert set(ms.FIELD_MAP) == fields, (
+        f"add these PPOConfig fields to matched_settings.FIELD_MAP: {sorted(fields - set(ms.FIELD_MAP))}; "
+        f"remove these: {sorted(set(ms.FIELD_MAP) - fields)}"
+    )
+    for name, (path, note) in ms.FIELD_MAP.items():
+        assert path is not None or note, f"{name}: no SB3 parameter and no stated difference"
+    settings = sb.sb3_settings(ODD)
+    for path, _ in ms.FIELD_MAP.values():
+        if path is not None:
+            ms._get(settings, path)  # every path exists
+    assert len(ms.settings_rows(ODD)) == len(fields)
+    json.dumps(settings)  # saved in config.json
 
 
 def test_sb3_initialises_like_ours():
