@@ -29,12 +29,21 @@ FLIGHTS = {
     "hover_ort": "quad-sitl models/hover/policy.onnx --episodes 10 --gcs none --backend onnxruntime",
     "waypoint": "quad-sitl models/waypoint/policy.onnx --episodes 10 --gcs none",
     "circle": "quad-sitl models/circle/policy.onnx --episodes 5 --gcs none",
+    "hover_dr": "quad-sitl models/hover_dr/policy.onnx --episodes 10 --gcs none",
+    "hover_lstm": "quad-sitl models/hover_lstm/policy.onnx --episodes 10 --gcs none --imu-noise --estimator-noise "
+    "--motor-tau 0.03",
+    "hover_px4_sih": "quad-sitl models/hover_px4_sih/policy.onnx --episodes 10 --gcs none",
+    "hover_hummingbird": "quad-sitl models/hover_hummingbird/policy.onnx --episodes 10 --gcs none",
 }
 LABELS = {
     "hover": "hover",
     "hover_ort": "hover",
     "waypoint": "waypoint (targets ≤ 2 m)",
     "circle": "circle (two laps)",
+    "hover_dr": "hover, domain-randomised",
+    "hover_lstm": "hover, LSTM (sensor noise, 30 ms motor lag)",
+    "hover_px4_sih": "hover, PX4 SIH quad-X (its own vehicle)",
+    "hover_hummingbird": "hover, RotorPy Hummingbird (its own vehicle)",
 }
 
 
@@ -78,15 +87,17 @@ def run(out: Path) -> dict:
 
 def table(data: dict) -> str:
     lines = [
-        "| policy | backend | episodes | success | mean error, last 2 s | steps/s | latency p50 / p99 | load average |",
-        "|---|---|---:|---:|---:|---:|---:|---:|",
+        "| policy | backend | episodes | success | mean error, last 2 s | worst \\|yaw rate\\|, last 2 s "
+        "| worst heading error, last 2 s | steps/s | latency p50 / p99 | load average |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name, f in data["flights"].items():
         s = f["summary"]
         load = " → ".join(f"{x:.1f}" for x in f["load_average_1min"])
         lines.append(
             f"| {LABELS.get(name, name)} | {s['backend']} | {s['episodes']} | {100 * s['success_rate']:.0f} % | "
-            f"{100 * s['mean_error_last_2s_m']:.2f} cm | {s['steps_per_s']:,.0f} | "
+            f"{100 * s['mean_error_last_2s_m']:.2f} cm | {s['max_abs_yaw_rate_last_2s_radps']:.3f} rad/s | "
+            f"{s['max_heading_error_last_2s_deg']:.1f}° | {s['steps_per_s']:,.0f} | "
             f"{s['control_latency_p50_us']:.0f} / {s['control_latency_p99_us']:.0f} µs | {load} |"
         )
     return "\n".join(lines) + "\n"

@@ -1,9 +1,10 @@
 """Policies flown by `quad-sitl --node-only` in RotorPy's PX4 simulator (rotorpy 3.0.0 PX4Multirotor with
-PX4's SIH quad-X parameters), kept as data for docs/airframes.md.
+PX4's SIH quad-X parameters, or RotorPy's Hummingbird), kept as data for docs/airframes.md.
 
     .venv/bin/python benchmarks/rotorpy_flights.py run docs/bench/rotorpy_flights.json   # about a minute
 
-Each flight is run exactly as tests/sitl/test_rotorpy.py runs it (its `fly`: tests/sitl/rotorpy_px4.py
+The flights are tests/sitl/test_rotorpy.py's FLIGHTS, each run exactly as that test runs it (its `fly`:
+tests/sitl/rotorpy_px4.py
 and quad-sitl in two processes over loopback TCP, RotorPy 5 m up with its rotors at rest, home from the
 first fix). Stored per flight: the policy, rate, MAVLink version, the commands, steps and missed steps
 (on RotorPy's side of the wire: no answer within its 10 ms, or the previous step's answer), and from
@@ -28,10 +29,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-SIH_POLICY = ROOT / "docs/bench/rotorpy_sih_hover.onnx"
-SIH_TRAINED_BY = "quad-train --task hover --vehicle px4_sih_quadx --init-rotor random --seed 0 --out runs/sih1"
-SIH_TRAINED_STEPS = 1_007_616  # global_step of that run's eval.json (the policy exported from it)
-SIH_TARGET = (0.6, -0.5, 0.55)  # m East, North, Up from home
 
 
 def _load_test_module():
@@ -62,6 +59,7 @@ def measure(t, case, rotorpy: dict, summary: dict) -> dict:
     heading = (turned + 180.0) % 360.0 - 180.0  # the heading's difference from the start, (-180, 180]
     return {
         "policy": str(case.policy.relative_to(ROOT)),
+        "vehicle": case.vehicle,
         "rate_hz": case.rate_hz,
         "mavlink": case.mavlink,
         "duration_s": case.duration_s,
@@ -85,21 +83,15 @@ def measure(t, case, rotorpy: dict, summary: dict) -> dict:
 
 def run(out: Path) -> dict:
     t = _load_test_module()
-    flights = {
-        "hover_100hz": t.RotorPyFlight(t.SHIPPED_HOVER, 100, 1, max_error_m=0.10),
-        "hover_250hz": t.RotorPyFlight(t.SHIPPED_HOVER, 250, 2, max_error_m=0.10),
-        "sih_target_100hz": t.RotorPyFlight(SIH_POLICY, 100, 1, max_error_m=0.05, duration_s=8.0, target=SIH_TARGET),
-    }
+    flights = {case.id: case for case in t.FLIGHTS}
     data = {
         "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "command": "benchmarks/rotorpy_flights.py run " + str(out),
         "machine": {"processor": platform.processor(), "cpus": os.cpu_count(), "python": platform.python_version()},
         "commit": subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip(),
-        "sih_policy": {
-            "file": str(SIH_POLICY.relative_to(ROOT)),
-            "trained_by": SIH_TRAINED_BY,
-            "global_step": SIH_TRAINED_STEPS,
-            "onnx_bytes": SIH_POLICY.stat().st_size,
+        "policies": {
+            str(case.policy.relative_to(ROOT)): json.loads((case.policy.parent / "config.json").read_text())["command"]
+            for case in flights.values()
         },
         "flights": {},
     }

@@ -89,7 +89,7 @@ def test_in_process_baseline(benchmark):
         monitor.reset()
         state, rotor = start.copy(), np.full((1, 4), p.hover_command)
         for _ in range(round(LOCKSTEP_S * 100)):
-            cmd = monitor.act(build_observation(state, target)[0])
+            cmd = monitor.act(build_observation(state, target, heading=start[0, 8])[0])  # its start heading
             state, rotor = dynamics.step(state, rotor, cmd[None].astype(np.float64), params)
         return state
 

@@ -414,6 +414,18 @@ ALLOWED: tuple[tuple[str, str], ...] = (
     ),
     (r"32\s+KiB", "arithmetic: one float64 row of 4,096 drones"),
     (
+        r"within\s+10°\s+of|same\s+2\s+s|over\s+its\s+last\s+2\s+s|last\s+2\s+s|\s+2\s+s:\s+error|(?:larger\s+than|most|runs)\s+25°|"
+        r"within\s+30°\s+of|a\s+90°\s+and\s+a\s+180°\s+turn",
+        "the yaw rule (core.mission: heading within 10° over the last 2 s), the training's commanded-heading offset "
+        "(30°, EnvConfig.heading_offset_deg), the node's heading reach (25°, runtime.node.HEADING_REACH_RAD) and "
+        "the turns a test commands",
+    ),
+    (
+        r"about\s+1\s+m\s+away|0\.95\s+m;|0\.91\s+m\)|bound\s+for\s+it\s+is\s+10\s+cm",
+        "the RotorPy test's targets (the length of its --target offsets) and its bound for a policy flown on "
+        "another vehicle (tests/sitl/test_rotorpy.py)",
+    ),
+    (
         r"\b1[05]0\s+ms\b",
         "the link-loss and ESC timeouts (100 ms; PX4's COM_DL_LOSS_T plays this role) and the fault tests' bound",
     ),

@@ -1,6 +1,8 @@
 """Ablation under sensor noise and motor lag (issue 7): evaluate trained hover runs on a grid of
 conditions with the project's one evaluator (100 deterministic episodes, seed 12345, success =
-no crash and mean error over the last 2 s ≤ 5 cm) and write a JSON file and Markdown tables.
+no crash and mean error over the last 2 s ≤ 5 cm) and write a JSON file and Markdown tables. The
+committed ablation.json was measured on policies trained before hover success included the heading
+(observation layout version 1), under the success rule of that time.
 
     .venv/bin/python docs/recurrent/ablation.py eval --out docs/recurrent/ablation.json \\
         mlp=runs/issue7/mlp-s0,runs/issue7/mlp-s1,runs/issue7/mlp-s2 \\
@@ -39,11 +41,11 @@ CONDITIONS = {
     "noise, τ 60 ms": {"noise": 1.0, "tau": 0.06},
 }
 LABELS = {
-    "mlp_exact": "MLP trained on exact states, no lag (models/hover)",
+    "mlp_exact": "MLP trained on exact states, no lag (models/hover before the yaw rule)",
     "mlp": "MLP",
     "hist3": "MLP + history k=3",
     "lstm": "LSTM",
-    "lstm2m": "LSTM, 2 M steps (shipped)",
+    "lstm2m": "LSTM, 2 M steps (shipped before the yaw rule)",
 }
 
 

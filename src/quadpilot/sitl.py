@@ -392,12 +392,10 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_file(str(e))
     except ValueError as e:  # the backend cannot run here (e.g. --backend c without a C compiler)
         return _bad_flag(str(e))
-    from quadpilot.core.observation import TRACK_LAYOUT
-
     task = args.task or policy.info.task
-    if args.node_only and (task == "circle" or policy.info.layout.name == TRACK_LAYOUT.name):
+    if args.node_only and (task == "circle" or policy.info.layout.tracks):
         return _bad_flag(f"--node-only flies to a fixed --target; {policy_path} is a {policy.info.task} policy")
-    if (task == "circle") != (policy.info.layout.name == TRACK_LAYOUT.name):
+    if (task == "circle") != (policy.info.layout.tracks):
         return _bad_flag(
             f"{policy_path} observes the {policy.info.layout.name} layout "
             f"({policy.info.task} policy); --task {task} needs "

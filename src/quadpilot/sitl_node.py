@@ -298,6 +298,11 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
 
 
 # --- quad-sitl's summary of episodes flown against its own simulator ------------------------------
+def _mean_of(eps: list[dict], key: str, reduce=np.mean) -> float:
+    values = [e[key] for e in eps if key in e]
+    return float(reduce(values)) if values else math.nan
+
+
 def summarise(logs, period: float, task: str = "hover") -> dict:
     from quadpilot.runtime.node import episode_summary
 
@@ -318,6 +323,10 @@ def summarise(logs, period: float, task: str = "hover") -> dict:
         "position_rms_error_m": float(np.mean([e["rms_error_m"] for e in finite])) if finite else math.nan,
         "mean_error_last_2s_m": float(np.mean([e["mean_error_last_window_m"] for e in finite])) if finite else math.nan,
         "final_distance_m": float(np.mean([e["final_distance_m"] for e in finite])) if finite else math.nan,
+        # the yaw rule (core.mission): per episode, over its last 2 s
+        "mean_abs_yaw_rate_last_2s_radps": _mean_of(finite, "mean_abs_yaw_rate_last_window_rad_s"),
+        "max_abs_yaw_rate_last_2s_radps": _mean_of(finite, "mean_abs_yaw_rate_last_window_rad_s", np.max),
+        "max_heading_error_last_2s_deg": _mean_of(finite, "mean_heading_error_last_window_deg", np.max),
         "steps": int(steps),
         "steps_per_s": steps / wall if wall > 0 else math.nan,
         "control_latency_p50_us": float(np.percentile(lat, 50)) if lat.size else math.nan,
@@ -343,6 +352,11 @@ def print_summary(s: dict, policy: Path) -> None:
         print(
             f"  position error          RMS {s['position_rms_error_m'] * 100:.2f} cm, last 2 s mean "
             f"{s['mean_error_last_2s_m'] * 100:.2f} cm, final {s['final_distance_m'] * 100:.2f} cm"
+        )
+        print(
+            f"  heading, last 2 s       |yaw rate| mean {s['mean_abs_yaw_rate_last_2s_radps']:.3f} rad/s "
+            f"(worst episode {s['max_abs_yaw_rate_last_2s_radps']:.3f}), "
+            f"worst heading error {s['max_heading_error_last_2s_deg']:.1f}°"
         )
     if "radial_rms_m" in s:
         print(

@@ -167,11 +167,13 @@ def test_noise_off_the_environment_observes_the_exact_state():
     env = QuadVectorEnv(16, config=make_config("hover"))
     obs, _ = env.reset(seed=5)
     assert env.batch.noise is None
-    np.testing.assert_array_equal(obs, build_observation(env.batch.state, env.batch.target))
+    np.testing.assert_array_equal(obs, build_observation(env.batch.state, env.batch.target, heading=env.batch.heading))
     rng = np.random.default_rng(0)
     for _ in range(20):
         obs, *_ = env.step(rng.uniform(-0.2, 0.2, (16, 4)).astype(np.float32))
-        np.testing.assert_array_equal(obs, build_observation(env.batch.state, env.batch.target))
+        np.testing.assert_array_equal(
+            obs, build_observation(env.batch.state, env.batch.target, heading=env.batch.heading)
+        )
 
 
 def test_noise_on_observes_the_estimate_and_judges_the_truth():
@@ -190,7 +192,7 @@ def test_noise_on_observes_the_estimate_and_judges_the_truth():
     np.testing.assert_array_equal(r1, r2)
     np.testing.assert_array_equal(t1, t2)
     np.testing.assert_array_equal(e1, e2)
-    est = build_observation(noisy.sensed(), noisy.target)
+    est = build_observation(noisy.sensed(), noisy.target, heading=noisy.obs_heading)
     np.testing.assert_array_equal(noisy.obs, est)
     d = noisy.obs - exact.obs
     assert 0.002 < np.std(d[:, 0:3]) < 0.05  # cm-level position error

@@ -40,7 +40,7 @@ def test_file_passes_the_full_checker_and_carries_metadata(hover_onnx):
     props = {p.key: p.value for p in model.metadata_props}
     assert props == meta
     assert props["quadpilot.schema"] == ONNX_SCHEMA
-    assert json.loads(props["quadpilot.obs_layout"])["name"] == "quadpilot.obs.hover/1"
+    assert json.loads(props["quadpilot.obs_layout"])["name"] == "quadpilot.obs.hover/2"
     assert props["quadpilot.task"] == "hover" and float(props["quadpilot.control_period_s"]) == 0.01
     assert json.loads(props["quadpilot.vehicle"])["mass"] == 0.665
     assert len(props["quadpilot.source_sha256"]) == 64

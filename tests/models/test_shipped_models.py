@@ -3,7 +3,11 @@ hover success ≥ 95 %; waypoint at the 2 m stage success ≥ 95 % with mean fin
 circle radial RMS ≤ 5 cm and speed error ≤ 0.1 m/s after the first lap. The randomised hover
 policy ≥ 95 % on the nominal plant and on the perturbed grid's hardest corners. The
 recurrent hover policy ≥ 95 % under the sensor noise and motor lag it was trained with,
-flown in quad-sitl with the noise on, and its ONNX file runs with explicit LSTM state.
+flown in quad-sitl with the noise on, and its ONNX file runs with explicit LSTM state. The hover
+policies trained for other airframes (PX4's SIH quad-X, RotorPy's Hummingbird from a vehicle file)
+≥ 95 % on their own vehicle, started with their rotors anywhere from rest to hover. Success includes
+the held heading everywhere (`core.mission`: mean |yaw rate| ≤ 0.2 rad/s and heading within 10°
+over the last 2 s), and each model's eval.json says so.
 
 Short evaluations (fewer episodes than the 100 of eval.json, other start seeds) so the default test
 run stays fast; each shipped eval.json holds the full 100-episode figures."""
@@ -54,7 +58,35 @@ def test_circle_policy_follows_the_circle():
     assert stored["circle_success_rate"] >= 0.95
 
 
-@pytest.mark.parametrize("folder", ["hover", "waypoint", "circle", "hover_dr"])
+@pytest.mark.parametrize(
+    ("folder", "vehicle"), [("hover_px4_sih", "px4_sih_quadx"), ("hover_hummingbird", "rotorpy_hummingbird")]
+)
+def test_airframe_policies_hold_the_target_on_their_own_vehicle(folder, vehicle):
+    policy, stored = shipped(folder)
+    cfg = policy.env_config
+    assert cfg.params.name == vehicle and cfg.init_rotor == "random"
+    r = evaluate(policy, cfg, episodes=EPISODES, seed=2024)
+    assert r["success_rate"] >= 0.95, r
+    assert r["mean_error_last_window_m"] <= 0.05, r
+    assert stored["success_rate"] >= 0.95 and stored["episodes"] == 100
+
+
+@pytest.mark.parametrize(
+    "folder", ["hover", "waypoint", "circle", "hover_dr", "hover_lstm", "hover_px4_sih", "hover_hummingbird"]
+)
+def test_each_shipped_model_holds_its_heading_under_the_yaw_rule(folder):
+    """Every shipped model was trained and judged with the heading held: its observation is the
+    version-2 layout (attitude relative to the commanded heading) and its eval.json's worst episode
+    is within the yaw rule."""
+    from quadpilot.core.mission import HEADING_TOLERANCE_DEG, YAW_RATE_TOLERANCE_RAD_S
+
+    policy, stored = shipped(folder)
+    assert policy.layout.heading_frame and policy.env_config.obs_version == 2
+    assert stored["max_mean_abs_yaw_rate_last_window_rad_s"] <= YAW_RATE_TOLERANCE_RAD_S
+    assert stored["max_mean_heading_error_last_window_deg"] <= HEADING_TOLERANCE_DEG
+
+
+@pytest.mark.parametrize("folder", ["hover", "waypoint", "circle", "hover_dr", "hover_px4_sih", "hover_hummingbird"])
 def test_each_model_folder_says_how_it_was_made(folder):
     config = json.loads((MODELS / folder / "config.json").read_text())
     assert config["command"].startswith(f"quad-train --task {config['task']}")

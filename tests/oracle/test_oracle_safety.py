@@ -240,6 +240,15 @@ def test_the_default_fallback_is_built_for_the_files_vehicle_and_control_period(
     obs = hover_obs((1.0, -2.0, 5.5))
     u = monitor.act(obs)
     assert monitor.source == "fallback"
-    expected = np.clip(np.asarray(FallbackController(info.vehicle, 0.02).act(obs), np.float32), 0.0, 1.0)
+    expected = np.clip(
+        np.asarray(
+            FallbackController(info.vehicle, 0.02, heading_frame=info.layout.heading_frame).act(obs), np.float32
+        ),
+        0.0,
+        1.0,
+    )
     np.testing.assert_array_equal(u, expected)
-    assert not np.array_equal(expected, FallbackController(info.vehicle, 0.01).act(obs).astype(np.float32))
+    assert not np.array_equal(
+        expected,
+        FallbackController(info.vehicle, 0.01, heading_frame=info.layout.heading_frame).act(obs).astype(np.float32),
+    )

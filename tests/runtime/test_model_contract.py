@@ -165,19 +165,19 @@ def _unknown_layout(tmp_path):
 def _layout_field_renamed(tmp_path):
     m = hover_model()
     edit_json_meta(m, "quadpilot.obs_layout", lambda j: j["fields"][1].update(name="velocity"))
-    return save(m, tmp_path), r"observation layout 'quadpilot\.obs\.hover/1'.*'velocity'.*'vel'"
+    return save(m, tmp_path), r"observation layout 'quadpilot\.obs\.hover/2'.*'velocity'.*'vel'"
 
 
 def _layout_field_dropped(tmp_path):
     m = hover_model()
     edit_json_meta(m, "quadpilot.obs_layout", lambda j: j["fields"].pop())  # no 'rates'
-    return save(m, tmp_path), r"observation layout 'quadpilot\.obs\.hover/1'.*'rates'"
+    return save(m, tmp_path), r"observation layout 'quadpilot\.obs\.hover/2'.*'rates'"
 
 
 def _layout_field_resized(tmp_path):
     m = hover_model()
     edit_json_meta(m, "quadpilot.obs_layout", lambda j: j["fields"][2].update(size=6))  # rot as 6D
-    return save(m, tmp_path), r"observation layout 'quadpilot\.obs\.hover/1'"
+    return save(m, tmp_path), r"observation layout 'quadpilot\.obs\.hover/2'"
 
 
 def _golden_action_edited(tmp_path):
@@ -229,7 +229,7 @@ def _input_dim_edited(tmp_path):
 
 def _input_width_17(tmp_path):
     """A consistent, valid graph taking 17 values: the first layer's weight loses a column. Only
-    the contract (layout hover/1 has 18 values) can refuse it."""
+    the contract (layout hover/2 has 18 values) can refuse it."""
     m = hover_model()
     set_initializer(m, "actor.0.weight", initializer(m, "actor.0.weight")[:, :17])
     m.graph.input[0].type.tensor_type.shape.dim[1].dim_value = 17

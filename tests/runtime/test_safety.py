@@ -256,7 +256,9 @@ def test_envelope(policy, case):
     else:
         assert spy.seen == [], "outside the envelope the policy is not asked"
         assert monitor.events["out_of_envelope"] == 1 and monitor.in_fallback
-        reference = FallbackController(policy.info.vehicle, policy.info.control_period_s)
+        reference = FallbackController(
+            policy.info.vehicle, policy.info.control_period_s, heading_frame=policy.info.layout.heading_frame
+        )
         np.testing.assert_allclose(u, reference.act(obs), atol=1e-6)
 
 
@@ -329,7 +331,7 @@ def test_nonfinite_command_hands_over_to_the_fallback(info):
     assert_safe_command(u)
     assert double.calls == 1
     assert monitor.events["command_nonfinite"] == 1 and monitor.in_fallback and monitor.source == "fallback"
-    reference = FallbackController(info.vehicle, info.control_period_s)
+    reference = FallbackController(info.vehicle, info.control_period_s, heading_frame=info.layout.heading_frame)
     np.testing.assert_allclose(u, reference.act(obs), atol=1e-6)
     monitor.act(obs)  # latched: the broken policy is not asked again
     assert double.calls == 1

@@ -1,10 +1,11 @@
 """RotorPy's PX4 simulator, driven the way RotorPy's own users drive it, in a process of its own (its
 10 ms wait for the autopilot's answer must not share a GIL with anything):
 
-    python rotorpy_px4.py PORT RATE_HZ STEPS OUT.json [--mavlink 1|2] [--seed N]
+    python rotorpy_px4.py PORT RATE_HZ STEPS OUT.json [--mavlink 1|2] [--seed N] [--vehicle sih|hummingbird]
 
 `rotorpy.vehicles.px4_multirotor.PX4Multirotor` with RotorPy's PX4 SIH quad-X parameters
-(`px4_sihsim_quadx_params`, PX4's 10040_sihsim_quadx airframe), 5 m up, level, at rest, rotors at
+(`px4_sihsim_quadx_params`, PX4's 10040_sihsim_quadx airframe) or its AscTec Hummingbird
+(`hummingbird_params`, rotors numbered RotorPy's way, not PX4's), 5 m up, level, at rest, rotors at
 rest. It listens on tcp 127.0.0.1:PORT, waits (in its constructor) for the autopilot's HEARTBEAT,
 then loops `state = vehicle.step(state, control, 1 / RATE_HZ)` STEPS times: each step sends
 HIL_STATE_QUATERNION and HIL_SENSOR and waits up to 10 ms for one HIL_ACTUATOR_CONTROLS, else flies
@@ -36,6 +37,7 @@ args.add_argument("steps", type=int)
 args.add_argument("out")
 args.add_argument("--mavlink", type=int, choices=(1, 2), default=1)
 args.add_argument("--seed", type=int, default=0)
+args.add_argument("--vehicle", choices=("sih", "hummingbird"), default="sih")
 args = args.parse_args()
 if args.mavlink == 2:
     os.environ["MAVLINK20"] = "1"
@@ -44,7 +46,11 @@ else:
 
 import numpy as np  # noqa: E402
 from rotorpy.vehicles.px4_multirotor import PX4Multirotor  # noqa: E402
-from rotorpy.vehicles.px4_sihsim_quadx_params import quad_params  # noqa: E402
+
+if args.vehicle == "sih":
+    from rotorpy.vehicles.px4_sihsim_quadx_params import quad_params
+else:
+    from rotorpy.vehicles.hummingbird_params import quad_params
 
 np.random.seed(args.seed)  # noqa: NPY002 - RotorPy's IMU noise draws from NumPy's global generator
 START = {

@@ -78,25 +78,41 @@ def vehicle_heartbeats(msgs) -> list:
     return [m for m in msgs if m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1]
 
 
-def test_a_lockstep_flight_from_the_ground_takes_off_lands_and_disarms_with_motors_off_on_the_ground():
-    gcs = Gcs()
+def start_landed_flight(gcs: Gcs, duration_s: float):
+    """Our simulator (landed start) and a commanded node flying the shipped hover policy, each in a
+    thread: (simulator, its thread, the node's thread, the dict that gets the node's log)."""
     sim = Simulator(SimConfig(listen="tcp:127.0.0.1:0", episodes=1, start="landed"))
     port = sim.bind().port
     sim_thread = threading.Thread(target=sim.serve, daemon=True)
     sim_thread.start()
     cfg = NodeConfig(
-        connect=f"tcp:127.0.0.1:{port}", duration_s=120.0, gcs=f"udp:127.0.0.1:{gcs.port}", command=True, start="landed"
+        connect=f"tcp:127.0.0.1:{port}",
+        duration_s=duration_s,
+        gcs=f"udp:127.0.0.1:{gcs.port}",
+        command=True,
+        start="landed",
     )
-    result = {}
+    result: dict = {}
     node = threading.Thread(target=lambda: result.update(log=Node(cfg).fly(SafetyMonitor(load_policy(SHIPPED_HOVER)))))
     node.start()
+    return sim, sim_thread, node, result
+
+
+def take_off(gcs: Gcs) -> None:
+    """Wait for the vehicle, give the ground station time to react, arm and take off."""
+    gcs.until(lambda m: m.get_type() == "HEARTBEAT" and m.autopilot == M.MAV_AUTOPILOT_PX4, 10, "vehicle")
+    # lockstep runs many times faster than the wall clock: give the ground station time to react
+    gcs.set_param("COM_DISARM_PRFLT", 60.0, M.MAV_PARAM_TYPE_REAL32)
+    gcs.set_param("COM_DL_LOSS_T", 300, M.MAV_PARAM_TYPE_INT32)
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+    assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, NAN) == M.MAV_RESULT_ACCEPTED
+
+
+def test_a_lockstep_flight_from_the_ground_takes_off_lands_and_disarms_with_motors_off_on_the_ground():
+    gcs = Gcs()
+    sim, sim_thread, node, result = start_landed_flight(gcs, 120.0)
     try:
-        gcs.until(lambda m: m.get_type() == "HEARTBEAT" and m.autopilot == M.MAV_AUTOPILOT_PX4, 10, "vehicle")
-        # lockstep runs many times faster than the wall clock: give the ground station time to react
-        gcs.set_param("COM_DISARM_PRFLT", 60.0, M.MAV_PARAM_TYPE_REAL32)
-        gcs.set_param("COM_DL_LOSS_T", 300, M.MAV_PARAM_TYPE_INT32)
-        assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
-        assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, NAN) == M.MAV_RESULT_ACCEPTED
+        take_off(gcs)
         gcs.until(lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.relative_alt > 2400, 30, "2.4 m")
         gcs.until(
             lambda m: m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1 and m.custom_mode == 3 << 24 | 4 << 16,
@@ -172,3 +188,46 @@ def test_the_node_failsafe_on_simulator_link_loss_reaches_the_ground_station_as_
     assert beats[0].base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED  # started in the air: armed, holding
     assert not beats[-1].base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and beats[-1].system_status == M.MAV_STATE_CRITICAL
     assert log.commander["flown"] and not log.commander["armed"]
+
+
+@pytest.mark.parametrize(("heading_ned", "yaw_enu_deg"), [(0.0, 90.0), (-math.pi / 2, 180.0)], ids=["north", "west"])
+def test_a_goto_with_a_yaw_turns_the_vehicle_to_that_heading_and_holds_it(heading_ned, yaw_enu_deg):
+    """DO_REPOSITION in place with param4 = 0 (north, MAVLink's heading, rad) or −π/2 (west) turns a
+    vehicle that took off facing east (the landed start's heading) by 90° or 180°: more than the
+    policy was trained to turn at once (30°), so the node gives it a heading at most 25° ahead and it
+    turns steadily; it ends facing the new heading, holding still, where it was."""
+    gcs = Gcs()
+    sim, sim_thread, node, result = start_landed_flight(gcs, 40.0)
+    try:
+        take_off(gcs)
+        gcs.until(
+            lambda m: m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1 and m.custom_mode == 3 << 24 | 4 << 16,
+            30,
+            "Hold",
+        )
+        int32_max = 2**31 - 1  # lat/lon "keep the current position" (MAVLink COMMAND_INT)
+        gcs.conn.mav.command_int_send(
+            1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION, 0, 0, -1, 0, 0, heading_ned,
+            int32_max, int32_max, NAN,
+        )  # fmt: skip
+        ack = gcs.until(
+            lambda m: m.get_type() == "COMMAND_ACK" and m.command == M.MAV_CMD_DO_REPOSITION, 5, "ack of the goto"
+        )
+        assert ack.result == M.MAV_RESULT_ACCEPTED
+        node.join(60)
+    finally:
+        sim.stop()
+        sim_thread.join(5)
+        node.join(5)
+        gcs.close()
+    log = result["log"]
+    t, s = np.asarray(log.t), np.asarray(log.states)
+    assert log.failsafe is None and set(np.asarray(log.sources)) <= {"policy", "idle"}
+    yaw_enu = np.degrees(s[:, 8])
+    flying = s[:, 2] > 2.0
+    assert np.all(np.abs(yaw_enu[flying][:10]) < 10.0)  # it took off facing east (ENU yaw 0)
+    last = t > t[-1] - 2.0  # the last 2 s: facing the new heading, still, where it took off
+    off = (yaw_enu[last] - yaw_enu_deg + 180.0) % 360.0 - 180.0
+    assert np.all(np.abs(off) < 10.0), yaw_enu[last]
+    assert np.abs(s[last, 11]).mean() < 0.2
+    assert np.linalg.norm(s[last, 0:2], axis=1).max() < 0.15 and np.all(np.abs(s[last, 2] - 2.5) < 0.15)

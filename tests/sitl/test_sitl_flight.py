@@ -20,7 +20,7 @@ from quadpilot.core.params import ParamBatch, get_preset
 from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.link import wire
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import Node, NodeConfig
+from quadpilot.runtime.node import Node, NodeConfig, heading_within_reach
 from quadpilot.sitl import SHIPPED_HOVER, main
 
 pytestmark = pytest.mark.sitl
@@ -52,6 +52,7 @@ def fly_in_process(start, steps=STEPS, through_wire=True):
     state, rotor = start[None].copy(), np.full((1, 4), get_preset("seed").hover_command)
     out = []
     mav = mavlink.MAVLink(None)
+    held = None  # the heading the node holds: that of the first state it saw
     for _ in range(steps):
         seen = state[0]
         if through_wire:
@@ -62,7 +63,9 @@ def fly_in_process(start, steps=STEPS, through_wire=True):
             seen = wire.state_from_hil_state_quaternion(msg, wire.Home())
             seen[9:12] = np.float32(state[0, 9:12])  # HIL_SENSOR gyro: float32 on the wire
         out.append(state[0].copy())
-        cmd = policy.act(build_observation(seen[None], TARGET)[0])
+        held = float(seen[8]) if held is None else held
+        heading = heading_within_reach(float(seen[8]), held)
+        cmd = policy.act(build_observation(seen[None], TARGET, heading=heading)[0])
         state, rotor = dynamics.step(state, rotor, cmd[None].astype(np.float64), params, 0.01)
     return np.array(out)
 

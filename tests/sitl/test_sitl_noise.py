@@ -10,7 +10,7 @@ import pytest
 from quadpilot.core.observation import build_observation
 from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import Node, NodeConfig
+from quadpilot.runtime.node import Node, NodeConfig, heading_within_reach
 from quadpilot.sitl import SHIPPED_HOVER
 
 pytestmark = pytest.mark.sitl
@@ -58,4 +58,7 @@ def test_without_estimator_noise_the_observation_is_the_decoded_truth():
     log, seen = fly()
     truth = np.array(log.states)
     truth[:, 9:12] = np.float32(truth[:, 9:12])  # rates come from HIL_SENSOR's float32 gyro
-    np.testing.assert_allclose(seen, build_observation(truth, np.array([0.0, 0.0, 2.0])), atol=1e-5)
+    # the heading the node holds: the first state's, given at most HEADING_REACH_RAD ahead
+    heading = [heading_within_reach(float(yaw), float(truth[0, 8])) for yaw in truth[:, 8]]
+    expected = build_observation(truth, np.array([0.0, 0.0, 2.0]), heading=np.array(heading))
+    np.testing.assert_allclose(seen, expected, atol=1e-5)

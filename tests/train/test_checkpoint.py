@@ -225,7 +225,7 @@ def test_load_policy_acts_like_the_trainer(tmp_path, normalize_obs):
     ppo.iterate()
     save_checkpoint(tmp_path / "policy.pt", ppo)
     policy = load_policy(tmp_path / "policy.pt")
-    assert policy.layout.name == "quadpilot.obs.track/1" and policy.env_config.task == "circle"
+    assert policy.layout.name == "quadpilot.obs.track/2" and policy.env_config.task == "circle"
     obs = np.random.default_rng(0).normal(size=(200, 21)).astype(np.float32)
     np.testing.assert_array_equal(policy(obs), ppo.act_deterministic(obs))
     with pytest.raises(ValueError, match=r"\(N, 21\)"):

@@ -12,6 +12,7 @@ import pytest
 
 from quadpilot.core.dynamics import IDX
 from quadpilot.core.frames import euler_to_rotmat
+from quadpilot.core.mission import yaw_errors
 from quadpilot.core.params import CRAZYFLIE, SEED_VEHICLE
 from quadpilot.core.reward import RewardConfig, hover_reward
 from quadpilot.train.envs import QuadBatch, QuadEnv, QuadVectorEnv, make_config
@@ -19,8 +20,11 @@ from quadpilot.train.envs import QuadBatch, QuadEnv, QuadVectorEnv, make_config
 IDS = {task: f"quadpilot.train:quadpilot/{task.capitalize()}-v0" for task in ("hover", "waypoint", "circle")}
 TASKS = list(IDS)
 CRASH_PENALTY = RewardConfig().crash_penalty
-MAX_STEP_REWARD = 1.5  # hover: Gaussians of weight 0.5 (σ 1 m) and 1.0 (σ 0.1 m), minus a rate penalty
-STILL = {"init_pos_radius": 0.0, "init_vel": 0.0, "init_tilt_deg": 0.0}  # start exactly at the start point
+# hover: Gaussians of weight 0.5 (σ 1 m) and 1.0 (σ 0.1 m) on position, 0.3 (σ 0.5 rad) on heading,
+# minus rate penalties
+MAX_STEP_REWARD = 1.8
+# start exactly at the start point, commanded to hold the start heading
+STILL = {"init_pos_radius": 0.0, "init_vel": 0.0, "init_tilt_deg": 0.0, "heading_offset_deg": 0.0}
 
 
 def make(task="hover", **kwargs):
@@ -128,7 +132,8 @@ def step_until_done(env, action, limit):
 
 def expected_reward_without_crash(env, obs):
     batch = env.unwrapped.batch
-    return float(hover_reward(batch.state, obs[None, 0:3], np.array([False]), env.unwrapped.cfg.reward)[0])
+    head = yaw_errors(batch.state, batch.heading)[1]
+    return float(hover_reward(batch.state, obs[None, 0:3], np.array([False]), env.unwrapped.cfg.reward, head)[0])
 
 
 def test_falling_to_the_ground_terminates_with_the_crash_penalty():
@@ -264,7 +269,7 @@ def single_copies(vec):
     singles = []
     for i in range(vec.num_envs):
         one = QuadBatch(vec.cfg, 1)
-        for name in ("state", "rotor", "target", "target_vel", "phase", "steps", "obs"):
+        for name in ("state", "rotor", "target", "target_vel", "phase", "steps", "obs", "heading"):
             setattr(one, name, getattr(vec.batch, name)[i : i + 1].copy())
         singles.append(one)
     return singles

@@ -64,7 +64,9 @@ def test_a_checkpoint_written_before_the_spine_resumes_to_the_same_weights(tmp_p
 
 
 TINY = ["--threads", "1", "--eval-episodes", "0", "--eval-every", "0"]
-RUNS = {  # quad-train flags → sha256 of policy.pt's model, computed by quadpilot f6db119 on this machine
+# quad-train flags → sha256 of policy.pt's model, computed by quadpilot f6db119 on this machine; that
+# code trained what --obs-version 1 trains (world-frame attitude, no heading to hold)
+RUNS = {
     "ppo": (
         [
             *("--task", "hover", "--num-envs", "16", "--rollout-steps", "16", "--minibatch-size", "64"),
@@ -92,7 +94,7 @@ RUNS = {  # quad-train flags → sha256 of policy.pt's model, computed by quadpi
 @pytest.mark.parametrize("kind", sorted(RUNS))
 def test_two_iterations_give_the_weights_they_gave_before_the_spine(tmp_path, kind):
     argv, want = RUNS[kind]
-    assert main([*argv, *TINY, "--out", str(tmp_path / "run")]) == 0
+    assert main([*argv, *TINY, "--obs-version", "1", "--out", str(tmp_path / "run")]) == 0
     ckpt = load_checkpoint(tmp_path / "run" / "policy.pt")
     assert ckpt["updates"] == 2
     pinned(digest(ckpt["model"]), want)

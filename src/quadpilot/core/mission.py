@@ -13,6 +13,16 @@ its last `SUCCESS_WINDOW_S` is at most `SUCCESS_TOLERANCE_M`. Circle: no crash, 
 second half of a two-lap flight (the first lap is the approach) the RMS radial error is at most
 `CIRCLE_RADIAL_TOLERANCE_M` and the mean absolute tangential-speed error at most
 `CIRCLE_SPEED_TOLERANCE_MPS` (seed 001's two circle errors, `core.reward.circle_errors`).
+
+Every task also holds its heading (`holds_heading`, the yaw rule): over the same last
+`SUCCESS_WINDOW_S`, the mean |yaw rate| is at most `YAW_RATE_TOLERANCE_RAD_S` and the mean heading
+error at most `HEADING_TOLERANCE_DEG`. The yaw rate is the body rate r (about body z, what the gyro
+reads and PX4's rate controller holds; in a hover it is the heading's rate ψ̇ to within the cosine of
+the tilt). The heading error is the yaw angle minus the commanded heading, wrapped to [−180°, 180°);
+the commanded heading is the heading at the start of the episode unless a caller gives one. A
+vehicle that holds its position while spinning, or that settles facing elsewhere, has not held
+still. `window_success` is the one rule: `judge` (SITL, the node, quad-sitl) and the training
+environments' `QuadBatch.success` and `train.evaluate` (eval.json) all call it.
 """
 
 from __future__ import annotations
@@ -28,6 +38,11 @@ from .start import sample_ball, sample_start_states
 TASKS = ("hover", "waypoint", "circle")
 SUCCESS_TOLERANCE_M = 0.05
 SUCCESS_WINDOW_S = 2.0
+# The yaw rule (module docstring). 0.2 rad/s is 11.5°/s, a turn in half a minute: slower than any
+# deliberate yaw, faster than the drift a gyro bias leaves. 10° is what a camera or a sensor pointed
+# by the vehicle tolerates, and far above a held heading's error (a fraction of a degree).
+YAW_RATE_TOLERANCE_RAD_S = 0.2
+HEADING_TOLERANCE_DEG = 10.0
 CIRCLE_RADIAL_TOLERANCE_M = 0.05
 CIRCLE_SPEED_TOLERANCE_MPS = 0.1
 HOME = {"hover": (0.0, 0.0, 2.0), "waypoint": (0.0, 0.0, 3.0), "circle": (0.0, 0.0, 2.0)}
@@ -108,6 +123,43 @@ def plan_episode(
     return Mission(task, home, home, radius, home, dt=dt)
 
 
+def wrap_angle(a):
+    """Angle(s) in rad wrapped to [−π, π)."""
+    return np.remainder(np.asarray(a, np.float64) + math.pi, 2.0 * math.pi) - math.pi
+
+
+def yaw_errors(states: np.ndarray, heading) -> tuple[np.ndarray, np.ndarray]:
+    """(|yaw rate| rad/s, |heading error| rad) per state: states (..., 12) with yaw in [−π, π] (as
+    `core.dynamics` keeps it), heading the commanded heading in [−π, π] (`wrap_angle` it first; a
+    scalar or an array broadcasting against states[..., 8]). See the module docstring.
+
+    With both angles in [−π, π], d = |ψ − ψ_cmd| ≤ 2π and the wrapped error is min(d, 2π − d): the
+    training environments compute this every step, so it avoids a modulo."""
+    states = np.asarray(states)
+    d = np.abs(states[..., 8] - heading)
+    return np.abs(states[..., 11]), np.minimum(d, 2.0 * math.pi - d)
+
+
+def holds_heading(mean_abs_yaw_rate, mean_abs_heading_error):
+    """The yaw rule on window means (rad/s, rad): bool, or a bool array for arrays."""
+    return (np.asarray(mean_abs_yaw_rate) <= YAW_RATE_TOLERANCE_RAD_S) & (
+        np.asarray(mean_abs_heading_error) <= math.radians(HEADING_TOLERANCE_DEG)
+    )
+
+
+def window_success(
+    ended_well, mean_error_m, mean_abs_yaw_rate, mean_abs_heading_error, tolerance_m: float = SUCCESS_TOLERANCE_M
+):
+    """The one success rule of hover and waypoint (and of circle's held heading): the episode ended
+    well (no crash, long enough), the mean position error over the window is within `tolerance_m`
+    and the vehicle held its heading (`holds_heading`). Scalars or (N,) arrays of window means."""
+    return (
+        np.asarray(ended_well, bool)
+        & (np.asarray(mean_error_m) <= tolerance_m)
+        & holds_heading(mean_abs_yaw_rate, mean_abs_heading_error)
+    )
+
+
 def judge(
     task: str,
     states: np.ndarray,
@@ -117,23 +169,32 @@ def judge(
     reward: RewardConfig | None = None,
     window_s: float = SUCCESS_WINDOW_S,
     tolerance_m: float = SUCCESS_TOLERANCE_M,
+    heading: float | None = None,
 ) -> dict:
     """Success and errors of one flown episode: states (N, 12) and the targets (N, 3) the policy
-    was given at each step. The flight must have lasted at least the judged window."""
+    was given at each step. The flight must have lasted at least the judged window. `heading`: the
+    commanded heading in rad (ENU yaw, 0 = east); None: the first state's yaw."""
     states = np.asarray(states, np.float64)
     if states.ndim != 2 or states.shape[0] == 0:
         return {"steps": 0, "success": False, "crashed": False, "rms_error_m": math.nan, "final_distance_m": math.nan}
+    heading = float(wrap_angle(states[0, 8] if heading is None else heading))
     err = states[:, 0:3] - np.broadcast_to(np.asarray(targets, np.float64), states[:, 0:3].shape)
     dist = np.linalg.norm(err, axis=1)
     crash = bool(crashed(states, err, reward or RewardConfig()).any())
     k = max(1, round(window_s / dt))
     window = float(dist[-k:].mean())
+    rate, head = yaw_errors(states[-k:], heading)
+    rate, head = float(rate.mean()), float(head.mean())
+    held = bool(holds_heading(rate, head))
     out = {
         "steps": len(states),
         "crashed": crash,
         "rms_error_m": float(np.sqrt(np.mean(dist**2))),
         "mean_error_last_window_m": window,
         "final_distance_m": float(dist[-1]),
+        "mean_abs_yaw_rate_last_window_rad_s": rate,
+        "mean_heading_error_last_window_deg": math.degrees(head),
+        "heading_deg": math.degrees(heading),
     }
     if task == "circle":
         half = states[len(states) // 2 :]
@@ -144,8 +205,12 @@ def judge(
         long_enough = len(states) * dt >= 2.0 * circle_lap_s() - dt
         out.update(radial_rms_m=rms, speed_error_mps=spd)
         out["success"] = bool(
-            not crash and long_enough and rms <= CIRCLE_RADIAL_TOLERANCE_M and spd <= CIRCLE_SPEED_TOLERANCE_MPS
+            not crash
+            and long_enough
+            and rms <= CIRCLE_RADIAL_TOLERANCE_M
+            and spd <= CIRCLE_SPEED_TOLERANCE_MPS
+            and held
         )
     else:
-        out["success"] = bool(not crash and len(states) >= k and window <= tolerance_m)
+        out["success"] = bool(window_success(not crash and len(states) >= k, window, rate, head, tolerance_m))
     return out

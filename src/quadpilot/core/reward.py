@@ -2,7 +2,9 @@
 
 Shapes follow seed 000: a large penalty on a crash (altitude < 0 or |roll|, |pitch| > 60°), a
 Gaussian reward on position error, a small penalty on angular rate. Circle adds seed 001's radius
-and tangential-speed errors. Every per-step reward is bounded: at most `RewardConfig.max_step`.
+and tangential-speed errors. Every per-step reward is bounded above by the sum of its Gaussians' weights.
+A heading term (a Gaussian on the heading error and a yaw-rate penalty) is added where the caller
+gives the heading error: a hover holds its heading too.
 
 Why Gaussian and not a linear distance penalty: with a linear penalty and an alive bonus, a drone
 far from the target earns less by staying alive than by crashing, and learns to crash on purpose;
@@ -41,6 +43,14 @@ class RewardConfig:
     episodes): without it the policy raced to far targets at up to 57° and crossed the 60° crash
     limit in 4–4.5 % of episodes; 5 beyond 45°: 2.5 %; 50 beyond 40°: 0.5 %. On hover, where it is
     never needed, 50 slowed learning (95 % success at 0.82 M steps instead of 0.49 M, one seed)."""
+    heading_weight: float = 0.3
+    """Weight of the Gaussian on heading error (yaw minus the commanded heading, wrapped): a hover
+    holds its heading too (`core.mission`'s yaw rule). Only where the caller gives a heading error."""
+    heading_sigma: float = 0.5
+    """rad, width of the heading Gaussian: about 29°, so a start up to the environments' heading
+    offset (30°) is still well inside its slope."""
+    yaw_rate_weight: float = 0.02
+    """Penalty per (rad/s)² of yaw rate r, on top of `rate_weight`'s (only with a heading error)."""
     crash_penalty: float = 10.0
     """Paid once on the step that ends in a crash or leaves the flight area."""
     max_tilt_deg: float = 60.0
@@ -77,8 +87,12 @@ def crashed(state: np.ndarray, pos_error: np.ndarray, cfg: RewardConfig) -> np.n
     )
 
 
-def hover_reward(state: np.ndarray, pos_error: np.ndarray, crash: np.ndarray, cfg: RewardConfig) -> np.ndarray:
-    """(N,) reward for reaching and holding a point. state (N, 12), pos_error (N, 3), crash (N,)."""
+def hover_reward(
+    state: np.ndarray, pos_error: np.ndarray, crash: np.ndarray, cfg: RewardConfig, heading_error=None
+) -> np.ndarray:
+    """(N,) reward for reaching and holding a point. state (N, 12), pos_error (N, 3), crash (N,);
+    heading_error (N,) rad, wrapped: yaw minus the commanded heading (None: no heading to hold, the
+    reward of the version-1 policies)."""
     d2 = np.einsum("ij,ij->i", pos_error, pos_error)
     w2 = np.einsum("ij,ij->i", state[:, 9:12], state[:, 9:12])
     over = np.maximum(np.maximum(np.abs(state[:, 6]), np.abs(state[:, 7])) - math.radians(cfg.tilt_soft_deg), 0.0)
@@ -88,6 +102,12 @@ def hover_reward(state: np.ndarray, pos_error: np.ndarray, crash: np.ndarray, cf
         - cfg.rate_weight * w2
         - cfg.tilt_weight * over * over
     )
+    if heading_error is not None:
+        r = (
+            r
+            + cfg.heading_weight * gaussian(heading_error * heading_error, cfg.heading_sigma)
+            - cfg.yaw_rate_weight * state[:, 11] * state[:, 11]
+        )
     return np.where(crash, r - cfg.crash_penalty, r)
 
 
@@ -104,12 +124,19 @@ def circle_errors(state: np.ndarray, center: np.ndarray, radius, speed) -> tuple
 
 
 def circle_reward(
-    state: np.ndarray, pos_error: np.ndarray, crash: np.ndarray, center, radius, speed, cfg: RewardConfig
+    state: np.ndarray,
+    pos_error: np.ndarray,
+    crash: np.ndarray,
+    center,
+    radius,
+    speed,
+    cfg: RewardConfig,
+    heading_error=None,
 ) -> np.ndarray:
     """(N,) reward for following a circle: the hover reward towards the moving target point, plus
     seed 001's radius and tangential-speed terms."""
     e_r, e_v = circle_errors(state, center, radius, speed)
-    r = hover_reward(state, pos_error, crash, cfg)
+    r = hover_reward(state, pos_error, crash, cfg, heading_error)
     return (
         r
         + cfg.radius_weight * gaussian(e_r * e_r, cfg.radius_sigma)

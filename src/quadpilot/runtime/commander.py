@@ -103,8 +103,8 @@ class CommanderConfig:
 
 @dataclass(frozen=True)
 class Setpoint:
-    """What the policy flies to: position (3,) and velocity (3,) ENU m from home, yaw rad ENU
-    (the hover policies have no yaw input; carried for those that will), armed, and whether the
+    """What the policy flies to: position (3,) and velocity (3,) ENU m from home, yaw rad ENU (the
+    heading a version-2 policy holds, `core.observation`), armed, and whether the
     motors run (False: idle, on the ground or after touchdown)."""
 
     position: np.ndarray

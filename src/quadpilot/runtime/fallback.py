@@ -29,10 +29,12 @@ Structure, a cascade from the slow loop to the fast one, each stage saturated be
    saturates, then ω = √(F/k_f) and the command ω/ω_max in [0, 1] (PX4 HIL_ACTUATOR_CONTROLS
    convention, the vehicle's output order).
 
-Frames as in `core`: world ENU (z up), body FLU. The observation carries no target heading, so the
-controller holds the heading it found on its first call after construction or `reset()`, and damps
-the yaw rate. The integrator and the held heading are the only state; `reset()` clears both, and
-the first `act` after it latches the heading. Reset at the start of each flight and call `act` only
+Frames as in `core`: world ENU (z up), body FLU. A version-1 observation carries no target heading,
+so the controller holds the heading it found on its first call after construction or `reset()`, and
+damps the yaw rate; a version-2 observation's attitude is relative to the commanded heading, and
+with `heading_frame=True` the controller holds that heading (yaw 0 in the observation). The
+integrator and the held heading are the only state; `reset()` clears both, and the first `act`
+after it latches the heading (unless `heading_frame`). Reset at the start of each flight and call `act` only
 while the fallback flies (as `runtime.safety` does): then the heading is latched at the hand-over.
 A fallback stepped in the background ("shadow mode") would need a `reset()` at the hand-over.
 """
@@ -184,7 +186,12 @@ class FallbackController:
     finite. Stateful: a velocity-error integrator and the held heading; `reset()` clears both.
     """
 
-    def __init__(self, vehicle: VehicleParams, dt: float = 0.01, gains: FallbackGains | None = None) -> None:
+    def __init__(
+        self, vehicle: VehicleParams, dt: float = 0.01, gains: FallbackGains | None = None, heading_frame: bool = False
+    ) -> None:
+        """heading_frame: the observation's attitude is relative to the commanded heading (the
+        version-2 layouts, `core.observation`): hold that heading, yaw 0 in the observation, instead
+        of the heading found at the first call."""
         if not (dt > 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
         self.vehicle = vehicle
@@ -217,6 +224,7 @@ class FallbackController:
 
         self._integral = np.zeros(3)  # m, ∫(v_sp − v) dt in the world frame
         self._heading: tuple[float, float] | None = None  # (cos ψ, sin ψ) held
+        self.heading_frame = bool(heading_frame)
         self.reset()
 
     @classmethod
@@ -232,7 +240,7 @@ class FallbackController:
     def reset(self) -> None:
         """Clear the integrator and the held heading: the next `act` behaves like a fresh controller's."""
         self._integral[:] = 0.0
-        self._heading = None
+        self._heading = (1.0, 0.0) if self.heading_frame else None
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Rotor commands for one observation.

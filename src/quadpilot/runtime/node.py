@@ -22,7 +22,10 @@ lasts `duration_s` of simulated time. The node speaks the MAVLink version the si
 Home, the origin of the local frame the policy's target is given in, is `NodeConfig.home`, or the
 first valid position the simulator reports (`home=None`: a simulator whose origin we do not know,
 RotorPy's is lat 40, lon -74.3); the target is `NodeConfig.target` metres ENU from home, or the
-first valid position itself (`target=None`: hold where it started).
+first valid position itself (`target=None`: hold where it started). The commanded heading (what a
+version-2 policy holds, `core.observation`) is the ground station's yaw in a commanded flight, else
+the heading of the first valid state; the policy is given it at most `HEADING_REACH_RAD` ahead of
+its yaw (`heading_within_reach`).
 
 One receive point (`Link.recv`, one system call per batch of messages) dispatching on
 `get_type()` through a table of handlers, one per message type (`_Flight.HANDLERS`). Link loss is
@@ -73,7 +76,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.dynamics import NUM_MOTORS
-from quadpilot.core.observation import TRACK_LAYOUT, build_observation
+from quadpilot.core.observation import build_observation
 from quadpilot.link import transport, wire
 
 from .commander import Commander
@@ -335,6 +338,19 @@ class Node:
                 gcs.send(commander.motors_cut(reason))
 
 
+HEADING_REACH_RAD = math.radians(25.0)
+"""The heading a version-2 policy is given is at most this far from its yaw: it was trained on
+commanded headings up to 30° from its start (`train.envs.EnvConfig.heading_offset_deg`), so a
+larger turn (a ground station's new heading) is fed to it as a heading that moves ahead of the
+vehicle, and the vehicle turns at the rate the policy turns by 25°."""
+
+
+def heading_within_reach(yaw: float, commanded: float) -> float:
+    """The commanded heading, or the heading HEADING_REACH_RAD from `yaw` towards it (rad, ENU)."""
+    err = math.remainder(commanded - yaw, 2.0 * math.pi)
+    return math.remainder(yaw + max(-HEADING_REACH_RAD, min(HEADING_REACH_RAD, err)), 2.0 * math.pi)
+
+
 class _Flight:
     """One episode of `Node.fly`: what the node knows so far, and one handler per message type.
 
@@ -356,7 +372,11 @@ class _Flight:
     ) -> None:
         self.cfg, self.monitor, self.link, self.gcs = cfg, monitor, link, gcs
         self.commander = commander  # None: fly to `targets`/`fixed`; else to its setpoint
-        self.track = monitor.policy.info.layout.name == TRACK_LAYOUT.name  # observes the target's velocity
+        self.track = monitor.policy.info.layout.tracks  # observes the target's velocity
+        # a version-2 policy sees its attitude relative to the commanded heading: the commander's
+        # yaw, else the heading of the first valid state (`core.mission`'s default)
+        self.heading_frame = monitor.policy.info.layout.heading_frame
+        self.heading: float | None = None
         airborne = commander is None or cfg.start == "air"
         self.held_armed = airborne  # the armed flag sent with `held`: the commander's, else always armed
         self.motors_on = airborne  # the motors were on at the last tick (or are at the start)
@@ -424,6 +444,8 @@ class _Flight:
                 self.gcs.home = home
         if self.fixed is None:  # hold the first valid position
             self.fixed = self.target = new[0:3].copy()
+        if self.heading is None:  # hold the first valid heading
+            self.heading = float(new[8])
         self.state = new
         self.state_time = msg.time_usec
         self.last_state_at = time.monotonic()
@@ -461,8 +483,10 @@ class _Flight:
             s = (self.estimate if self.estimate_time == t_us else state).copy()
             s[9:12] = wire.gyro_from_hil_sensor(msg)
             run = True
+            heading = self.heading
             if commander is not None:
                 sp = self._command(s, t_us)
+                heading = sp.yaw
                 target, target_vel = sp.position, (sp.velocity if self.track else None)
                 run = sp.armed and sp.motors_enabled
                 if run and not self.motors_on:
@@ -474,7 +498,8 @@ class _Flight:
                 target, target_vel = self.targets(round((t_us - self.first_us) / self.period_us))
             self.target = target
             if run:
-                obs = build_observation(s[None], target, target_vel)[0]
+                heading = heading_within_reach(float(s[8]), heading) if self.heading_frame else None
+                obs = build_observation(s[None], target, target_vel, heading=heading)[0]
                 cmd = self.held = monitor.act(obs)
                 self.held_source = monitor.source
             else:  # disarmed, or idle on the ground: motors off, the policy not run

@@ -78,7 +78,11 @@ class SafetyMonitor:
         self._policy_act = policy._act
         self._observation = policy.observation
         info = policy.info
-        self.fallback = fallback if fallback is not None else FallbackController(info.vehicle, info.control_period_s)
+        self.fallback = (
+            fallback
+            if fallback is not None
+            else FallbackController(info.vehicle, info.control_period_s, heading_frame=info.layout.heading_frame)
+        )
         self.limits = limits or ObservationLimits()
         self._bound = self.limits.vector(info.layout).tolist()
         sl = info.layout.slices()

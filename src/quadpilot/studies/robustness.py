@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from quadpilot.core import dynamics
+from quadpilot.core.mission import window_success, wrap_angle, yaw_errors
 from quadpilot.core.observation import build_observation
 from quadpilot.core.params import VehicleParams
 from quadpilot.core.randomization import RandomizationConfig
@@ -78,10 +79,13 @@ class FallbackBank:
 
     output = "command"
 
-    def __init__(self, vehicle: VehicleParams, dt: float = dynamics.DT, name: str = "fallback") -> None:
+    def __init__(
+        self, vehicle: VehicleParams, dt: float = dynamics.DT, name: str = "fallback", heading_frame: bool = False
+    ) -> None:
         from quadpilot.runtime.fallback import FallbackController
 
-        self._make = lambda: FallbackController(vehicle, dt)
+        # heading_frame: fed version-2 observations (attitude relative to the commanded heading)
+        self._make = lambda: FallbackController(vehicle, dt, heading_frame=heading_frame)
         self.name = name
         self.ctrls: list = []
 
@@ -111,6 +115,8 @@ class Flight:
     final_err: np.ndarray
     ep_return: np.ndarray
     dt: float
+    heading: np.ndarray | None = None
+    """(N,) rad, each drone's commanded heading (None: its start yaw)."""
 
     @property
     def alive(self) -> np.ndarray:
@@ -142,7 +148,8 @@ def fly(
     batch.reset(np.ones(n, bool), np.random.default_rng(seed))
     if starts is not None:
         batch.state[:] = np.asarray(starts, batch.dtype).reshape(n, dynamics.STATE_DIM)
-        build_observation(batch.state, batch.target, None, out=batch.obs)
+        batch.heading[:] = wrap_angle(batch.state[:, 8])  # the given starts hold their own heading
+        build_observation(batch.state, batch.target, None, out=batch.obs, heading=batch.obs_heading)
     controller.reset(n)
     T = cfg.episode_steps if steps is None else steps
     window = min(T, cfg.success_steps)
@@ -168,10 +175,11 @@ def fly(
             batch.state, batch.rotor, command, batch.params, cfg.dt, cfg.substeps, force=force, torque=torque
         )
         batch.steps += 1
-        build_observation(batch.state, batch.target, None, out=batch.obs)
+        build_observation(batch.state, batch.target, None, out=batch.obs, heading=batch.obs_heading)
         pos_err = batch.state[:, 0:3] - batch.target
         crash = crashed(batch.state, pos_err, cfg.reward)
-        ep_return += np.where(alive, hover_reward(batch.state, pos_err, crash, cfg.reward), 0.0)
+        paid = yaw_errors(batch.state, batch.heading)[1] if batch.obs_heading is not None else None
+        ep_return += np.where(alive, hover_reward(batch.state, pos_err, crash, cfg.reward, paid), 0.0)
         err = np.sqrt(np.einsum("ij,ij->i", pos_err, pos_err))
         final_err = np.where(alive, err, final_err)
         newly = alive & crash
@@ -180,13 +188,25 @@ def fly(
         if k >= T - window:
             err_sum += err
         states[k + 1] = batch.state
-    return Flight(states, batch.target.astype(np.float64), crash_step, err_sum / window, final_err, ep_return, cfg.dt)
+    return Flight(
+        states,
+        batch.target.astype(np.float64),
+        crash_step,
+        err_sum / window,
+        final_err,
+        ep_return,
+        cfg.dt,
+        batch.heading.astype(np.float64),
+    )
 
 
 def summarise(flight: Flight, cfg: EnvConfig) -> dict:
     """The hover keys of `evaluate`'s result for a flight."""
     alive = flight.alive
-    success = alive & (flight.mean_err <= cfg.success_tolerance)
+    window = flight.states[-min(len(flight.states) - 1, cfg.success_steps) :]
+    heading = flight.states[0, :, 8] if flight.heading is None else flight.heading
+    rate, head = yaw_errors(window, heading)
+    success = window_success(alive, flight.mean_err, rate.mean(axis=0), head.mean(axis=0), cfg.success_tolerance)
     nan = float("nan")
     return {
         "episodes": int(alive.size),
@@ -530,7 +550,7 @@ def main(argv: list[str] | None = None) -> int:
         onnx[name] = Path(path).with_suffix(".onnx")
     cfg = hover_config()
     if args.fallback:
-        controllers.append(FallbackBank(cfg.params, cfg.dt))
+        controllers.append(FallbackBank(cfg.params, cfg.dt, heading_frame=cfg.layout.heading_frame))
     if not controllers:
         p.error("nothing to measure: give --policy and/or --fallback")
     args.out.mkdir(parents=True, exist_ok=True)

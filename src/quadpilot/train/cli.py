@@ -31,7 +31,14 @@ import textwrap
 
 from quadpilot.console import Parser, UsageError
 
-from .options import PPO_NETWORK_OPTIONS, SIZE_OPTIONS, check_motor_tau, resolve_vehicle, upper_bounds
+from .options import (
+    PPO_NETWORK_OPTIONS,
+    SIZE_OPTIONS,
+    check_heading_offset,
+    check_motor_tau,
+    resolve_vehicle,
+    upper_bounds,
+)
 
 ALGOS = ("ppo", "sb3", "sac")
 """--algo: our PPO, a comparison baseline from another library trained on the same environment with
@@ -238,6 +245,21 @@ def _add_sensor_options(p: argparse.ArgumentParser) -> None:
         "drone whose motors were just armed; with a motor lag the policy must spin them up) or random "
         "(uniform between the two, per rotor). Default: hover.",
     )
+    p.add_argument(
+        "--heading-offset",
+        type=float,
+        metavar="DEG",
+        help="Commanded heading of an episode: its start yaw plus an offset uniform in ±DEG (0 to 180), so the "
+        "policy learns to turn to a heading as well as to hold one. Default: 30 (0 with --obs-version 1).",
+    )
+    p.add_argument(
+        "--obs-version",
+        type=int,
+        choices=(1, 2),
+        help="2: the policy sees its attitude relative to the commanded heading and is paid for holding it "
+        "(quadpilot.core.observation); 1: world-frame attitude and no heading term, as policies trained before "
+        "hover success included yaw (to reproduce one). Default: 2.",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -247,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.out is not None and not args.out.strip():
             raise UsageError("--out: empty path; expected the run directory")
         check_motor_tau(args)
+        check_heading_offset(args)
         given = [f"--{k.replace('_', '-')}" for k in PPO_NETWORK_OPTIONS if getattr(args, k) is not None]
         if args.algo != "ppo" and given:
             raise UsageError(f"{', '.join(given)}: options of our PPO (--algo ppo), not of --algo {args.algo}")

@@ -27,8 +27,18 @@ from quadpilot.core.mission import (
     SUCCESS_TOLERANCE_M,
     SUCCESS_WINDOW_S,
     TASKS,
+    window_success,
+    wrap_angle,
+    yaw_errors,
 )
-from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT, ObsLayout, build_observation
+from quadpilot.core.observation import (
+    HOVER_LAYOUT,
+    HOVER_LAYOUT_V1,
+    TRACK_LAYOUT,
+    TRACK_LAYOUT_V1,
+    ObsLayout,
+    build_observation,
+)
 from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
 from quadpilot.core.randomization import RandomizationConfig, Randomizer
 from quadpilot.core.randomization import preset as randomization_preset
@@ -67,6 +77,14 @@ class EnvConfig:
     """deg, start roll and pitch uniform in ±init_tilt_deg; yaw is uniform in [−180°, 180°)."""
     init_rate: float = 0.0
     """rad/s, each start body rate uniform in ±init_rate."""
+    heading_offset_deg: float = 30.0
+    """deg, the commanded heading of an episode is its start yaw plus an offset uniform in
+    ±heading_offset_deg, so the policy learns to turn to a heading as well as to hold one (0: the
+    start heading, `core.mission`'s default)."""
+    obs_version: int = 2
+    """2: the observation's attitude is relative to the commanded heading and the reward pays for
+    holding it (`core.observation`, `core.reward`); 1: world-frame attitude and no heading term, as
+    every policy trained before the yaw rule (a saved configuration without this key is version 1)."""
     init_rotor: str = "hover"
     """Rotor speed at the start of an episode: "hover" (every rotor at the hover command, spinning as
     in flight), "rest" (stopped: with a motor lag the rotors spin up first, as a vehicle dropped with
@@ -79,7 +97,7 @@ class EnvConfig:
     """m/s, speed along the circle, counter-clockwise seen from above (seed 001)."""
     success_tolerance: float = SUCCESS_TOLERANCE_M
     """m, an episode succeeds if it ends uncrashed with mean position error over its last
-    `success_window` seconds at most this."""
+    `success_window` seconds at most this, and holds its start heading (`core.mission.window_success`)."""
     success_window: float = SUCCESS_WINDOW_S
     """s, see `success_tolerance`."""
     dtype: str = "float32"
@@ -110,6 +128,10 @@ class EnvConfig:
             raise ValueError("episode_steps and substeps must be ≥ 1 and dt > 0")
         if len(self.home) != 3:
             raise ValueError(f"home must be (x, y, z) in metres, got {self.home!r}")
+        if self.obs_version not in (1, 2):
+            raise ValueError(f"obs_version must be 1 or 2, got {self.obs_version!r}")
+        if not 0.0 <= self.heading_offset_deg <= 180.0:
+            raise ValueError(f"heading_offset_deg must be in [0, 180], got {self.heading_offset_deg!r}")
         if self.init_rotor not in INIT_ROTOR:
             raise ValueError(f"init_rotor must be one of {INIT_ROTOR}, got {self.init_rotor!r}")
         if not (self.sensor_noise is None or isinstance(self.sensor_noise, SensorNoise)):
@@ -127,6 +149,8 @@ class EnvConfig:
 
     @property
     def layout(self) -> ObsLayout:
+        if self.obs_version == 1:
+            return TRACK_LAYOUT_V1 if self.task == "circle" else HOVER_LAYOUT_V1
         return TRACK_LAYOUT if self.task == "circle" else HOVER_LAYOUT
 
     @property
@@ -143,6 +167,8 @@ class EnvConfig:
     @classmethod
     def from_json(cls, d: dict) -> EnvConfig:
         d = dict(d)
+        d.setdefault("obs_version", 1)  # saved before the yaw rule: world-frame attitude, start heading
+        d.setdefault("heading_offset_deg", 0.0)
         d["vehicle"] = VehicleParams(**d["vehicle"]) if isinstance(d["vehicle"], dict) else d["vehicle"]
         d["reward"] = RewardConfig(**d.get("reward", {}))
         d["home"] = tuple(d["home"])
@@ -203,6 +229,9 @@ class QuadBatch:
         self.steps = np.zeros(n, np.int64)
         self.ep_return = np.zeros(n)
         self.err_sum = np.zeros(n)  # position error summed over the success window
+        self.heading = np.zeros(n, self.dtype)  # rad, the commanded heading (start yaw + offset)
+        self.yaw_rate_sum = np.zeros(n)  # |yaw rate| summed over the success window, rad/s
+        self.heading_err_sum = np.zeros(n)  # |heading error| summed over the success window, rad
         self.obs = np.zeros((n, cfg.layout.dim), np.float32)
         self._omega = cfg.circle_speed / cfg.circle_radius
         self.noise_spec = cfg.noise
@@ -211,6 +240,12 @@ class QuadBatch:
         self.randomizer = (
             Randomizer(cfg.randomization, self.nominal, n, cfg.dt, self.dtype) if cfg.randomization else None
         )
+
+    @property
+    def obs_heading(self) -> np.ndarray | None:
+        """The heading the observation is relative to: the commanded one (version 2), else None
+        (version 1: the world frame)."""
+        return self.heading if self.cfg.obs_version == 2 else None
 
     # --- targets -------------------------------------------------------------------------
     def _circle_target(self, idx) -> tuple[np.ndarray, np.ndarray]:
@@ -237,6 +272,10 @@ class QuadBatch:
             start, self.target_vel[idx] = self._circle_target(idx)
             self.target[idx] = start
         self.state[idx] = sample_start_states(rng, start, c.init_pos_radius, c.init_vel, c.init_tilt_deg, c.init_rate)
+        # the commanded heading, drawn next to the start state (before any plant draw, so that a
+        # randomised and a plain batch from one seed start alike)
+        offset = rng.uniform(-1.0, 1.0, k) * np.radians(c.heading_offset_deg) if c.heading_offset_deg else 0.0
+        self.heading[idx] = wrap_angle(self.state[idx, 8] + offset)
         if self.randomizer is not None:  # a new ParamBatch (dynamics re-derives its constants)
             self.params = self.randomizer.resample(self.params, idx, rng, c.episode_steps)
         if c.init_rotor == "hover":
@@ -248,6 +287,8 @@ class QuadBatch:
         self.steps[idx] = 0
         self.ep_return[idx] = 0.0
         self.err_sum[idx] = 0.0
+        self.yaw_rate_sum[idx] = 0.0
+        self.heading_err_sum[idx] = 0.0
         if self.noise_spec is not None:  # the noise stream continues from a seed drawn here
             seed = int(rng.integers(2**63))
             if self.noise is None:
@@ -256,7 +297,10 @@ class QuadBatch:
                 self.noise.rng = np.random.default_rng(seed)
             self.noise.reset(idx)
         self.obs[idx] = build_observation(
-            self.sensed(idx), self.target[idx], self.target_vel[idx] if c.task == "circle" else None
+            self.sensed(idx),
+            self.target[idx],
+            self.target_vel[idx] if c.task == "circle" else None,
+            heading=None if self.obs_heading is None else self.obs_heading[idx],
         )
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -274,17 +318,25 @@ class QuadBatch:
             self.target, self.target_vel = self._circle_target(slice(None))
         if self.noise is not None:
             self.noise.step()
-        build_observation(self.sensed(), self.target, self.target_vel if circle else None, out=self.obs)
+        build_observation(
+            self.sensed(), self.target, self.target_vel if circle else None, out=self.obs, heading=self.obs_heading
+        )
         pos_err = self.state[:, 0:3] - self.target  # world frame, m
         crash = crashed(self.state, pos_err, c.reward)
+        rate, head = yaw_errors(self.state, self.heading)
+        paid = head if c.obs_version == 2 else None  # version 1: no heading term in the reward
         if circle:
-            reward = circle_reward(self.state, pos_err, crash, self.home, c.circle_radius, c.circle_speed, c.reward)
+            reward = circle_reward(
+                self.state, pos_err, crash, self.home, c.circle_radius, c.circle_speed, c.reward, paid
+            )
         else:
-            reward = hover_reward(self.state, pos_err, crash, c.reward)
+            reward = hover_reward(self.state, pos_err, crash, c.reward, paid)
         err = np.sqrt(np.einsum("ij,ij->i", pos_err, pos_err))
         self.ep_return += reward
         window = self.steps > c.episode_steps - c.success_steps
         self.err_sum += np.where(window, err, 0.0)
+        np.add(self.yaw_rate_sum, rate, out=self.yaw_rate_sum, where=window)
+        np.add(self.heading_err_sum, head, out=self.heading_err_sum, where=window)
         truncated = (self.steps >= c.episode_steps) & ~crash
         return self.obs, reward, crash, truncated, err
 
@@ -296,9 +348,16 @@ class QuadBatch:
         return self.noise.estimate(self.state if idx is None else self.state[idx], idx)
 
     def success(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
-        """(N,) bool: ended by the time limit with mean error over the window within tolerance."""
-        mean_err = self.err_sum / self.cfg.success_steps
-        return truncated & ~terminated & (mean_err <= self.cfg.success_tolerance)
+        """(N,) bool: ended by the time limit with mean error over the window within tolerance and
+        the start heading held (`core.mission.window_success`, the rule SITL judges by)."""
+        k = self.cfg.success_steps
+        return window_success(
+            truncated & ~terminated,
+            self.err_sum / k,
+            self.yaw_rate_sum / k,
+            self.heading_err_sum / k,
+            self.cfg.success_tolerance,
+        )
 
     def circle_metrics(self) -> tuple[np.ndarray, np.ndarray]:
         """(radius error, tangential-speed error), each (N,), for the circle task."""

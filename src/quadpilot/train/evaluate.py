@@ -4,9 +4,11 @@ runtime's): a policy is any callable mapping raw observations (N, obs_dim) float
 true) with `initial_state(n)` and `step(obs, state)` → (actions, state), started once per
 evaluation (every episode starts together at step 0).
 
-Success is `core.mission`'s definition, the one SITL judges by too. Hover/waypoint: the episode
-does not crash and the mean position error over its last 2 s is ≤ 0.05 m. Circle: radial RMS error
-and speed error measured after the first lap, over an episode of two laps.
+Success is `core.mission`'s definition (`window_success`), the one SITL judges by too.
+Hover/waypoint: the episode does not crash, the mean position error over its last 2 s is ≤ 0.05 m,
+and over the same 2 s the mean |yaw rate| is ≤ 0.2 rad/s and the mean heading error ≤ 10° (the
+heading at the start of the episode). Circle: radial RMS error and speed error measured after the
+first lap, over an episode of two laps, and the same held heading over the last 2 s.
 """
 
 from __future__ import annotations
@@ -17,7 +19,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from quadpilot.core.mission import CIRCLE_RADIAL_TOLERANCE_M, CIRCLE_SPEED_TOLERANCE_MPS
+from quadpilot.core.mission import (
+    CIRCLE_RADIAL_TOLERANCE_M,
+    CIRCLE_SPEED_TOLERANCE_MPS,
+    holds_heading,
+    window_success,
+    yaw_errors,
+)
 
 from .envs import EnvConfig, QuadBatch
 
@@ -36,6 +44,8 @@ def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int 
     alive = np.ones(episodes, bool)
     length = np.full(episodes, T)
     err_sum = np.zeros(episodes)
+    rate_sum = np.zeros(episodes)  # |yaw rate| over the window, rad/s
+    head_sum = np.zeros(episodes)  # |heading error| over the window, rad (heading: the start yaw)
     final_err = np.zeros(episodes)
     ep_return = np.zeros(episodes)
     rad_sq = np.zeros(episodes)
@@ -57,13 +67,17 @@ def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int 
         alive &= ~term
         if t >= T - window:
             err_sum += err
+            rate, head = yaw_errors(batch.state, batch.heading)
+            rate_sum += rate
+            head_sum += head
         if cfg.task == "circle" and t >= T // 2:
             e_r, e_v = batch.circle_metrics()
             rad_sq += e_r**2
             spd_abs += np.abs(e_v)
             tracked += 1
     mean_err = err_sum / window
-    success = alive & (mean_err <= cfg.success_tolerance)
+    mean_rate, mean_head = rate_sum / window, head_sum / window
+    success = window_success(alive, mean_err, mean_rate, mean_head, cfg.success_tolerance)
     out = {
         "task": cfg.task,
         "episodes": episodes,
@@ -78,11 +92,21 @@ def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int 
         "mean_final_distance_m": float(final_err[alive].mean()) if alive.any() else float("nan"),
         "success_tolerance_m": cfg.success_tolerance,
         "window_s": cfg.success_window,
+        "mean_abs_yaw_rate_last_window_rad_s": float(mean_rate[alive].mean()) if alive.any() else float("nan"),
+        "max_mean_abs_yaw_rate_last_window_rad_s": float(mean_rate[alive].max()) if alive.any() else float("nan"),
+        "max_mean_heading_error_last_window_deg": float(np.degrees(mean_head[alive].max()))
+        if alive.any()
+        else float("nan"),
     }
     if cfg.task == "circle":
         rms = np.sqrt(rad_sq / max(tracked, 1))
         spd = spd_abs / max(tracked, 1)
-        ok = alive & (rms <= CIRCLE_RADIAL_TOLERANCE_M) & (spd <= CIRCLE_SPEED_TOLERANCE_MPS)
+        ok = (
+            alive
+            & (rms <= CIRCLE_RADIAL_TOLERANCE_M)
+            & (spd <= CIRCLE_SPEED_TOLERANCE_MPS)
+            & holds_heading(mean_rate, mean_head)
+        )
         out.update(
             radial_rms_m=float(rms[alive].mean()) if alive.any() else float("nan"),
             speed_error_mps=float(spd[alive].mean()) if alive.any() else float("nan"),

@@ -151,8 +151,15 @@ def check_motor_tau(args) -> None:
         raise UsageError(f"--motor-tau must be a finite number of seconds ≥ 0, got {args.motor_tau}")
 
 
+def check_heading_offset(args) -> None:
+    off = getattr(args, "heading_offset", None)
+    if off is not None and not (math.isfinite(off) and 0.0 <= off <= 180.0):
+        raise UsageError(f"--heading-offset must be a number of degrees in [0, 180], got {off}")
+
+
 def env_kwargs(args) -> dict:
-    """`envs.make_config` keywords for --vehicle, --randomize, --sensor-noise and --motor-tau."""
+    """`envs.make_config` keywords for --vehicle, --randomize, --sensor-noise, --motor-tau,
+    --init-rotor, --heading-offset and --obs-version."""
     kw: dict = {"vehicle": args.vehicle} if args.vehicle else {}
     if getattr(args, "randomize", None):
         kw["randomization"] = args.randomize  # a preset name; make_config scales it to the vehicle
@@ -163,6 +170,13 @@ def env_kwargs(args) -> dict:
         kw["vehicle"] = dataclasses.replace(_vehicle(args), motor_tau=args.motor_tau)
     if getattr(args, "init_rotor", None):
         kw["init_rotor"] = args.init_rotor
+    if getattr(args, "obs_version", None):
+        kw["obs_version"] = args.obs_version
+        if args.obs_version == 1:
+            kw["heading_offset_deg"] = 0.0  # as before the yaw rule, unless --heading-offset says otherwise
+    if getattr(args, "heading_offset", None) is not None:
+        check_heading_offset(args)
+        kw["heading_offset_deg"] = args.heading_offset
     return kw
 
 
@@ -201,4 +215,10 @@ def clashes(args, explicit: dict, stored_cfg, extra: dict, env_config: dict) -> 
         out.append(f"--motor-tau {args.motor_tau} (checkpoint: {stored.get('motor_tau')})")
     if getattr(args, "init_rotor", None) and args.init_rotor != env_config.get("init_rotor", "hover"):
         out.append(f"--init-rotor {args.init_rotor} (checkpoint: {env_config.get('init_rotor', 'hover')})")
+    version = env_config.get("obs_version", 1)  # saved before the yaw rule: version 1
+    if getattr(args, "obs_version", None) and args.obs_version != version:
+        out.append(f"--obs-version {args.obs_version} (checkpoint: {version})")
+    offset = env_config.get("heading_offset_deg", 0.0)
+    if getattr(args, "heading_offset", None) is not None and args.heading_offset != offset:
+        out.append(f"--heading-offset {args.heading_offset:g} (checkpoint: {offset:g})")
     return out

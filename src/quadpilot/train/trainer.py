@@ -56,6 +56,9 @@ PREVIOUS = "checkpoint.prev.pt"
 # QuadBatch arrays that hold an episode in flight; restoring them lets a resumed run continue the
 # very episodes the checkpoint interrupted instead of resetting every drone.
 ENV_ARRAYS = ("state", "rotor", "target", "target_vel", "phase", "steps", "ep_return", "err_sum", "obs")
+# the held heading of those episodes (`core.mission`'s yaw rule); absent from checkpoints written
+# before it, whose episodes in flight then hold the heading they have at the resume
+HEADING_ARRAYS = ("heading", "yaw_rate_sum", "heading_err_sum")
 
 
 class NonFiniteError(RuntimeError):
@@ -200,7 +203,7 @@ class Trainer:
                 "extra_state": plain(self.extra_state()),
             },
             "env": {
-                **{name: tensor(getattr(batch, name)) for name in ENV_ARRAYS},
+                **{name: tensor(getattr(batch, name)) for name in ENV_ARRAYS + HEADING_ARRAYS},
                 "target_radius": float(batch.target_radius),
                 "started": bool(self.env._started),
                 **_randomization_state(batch),
@@ -266,6 +269,11 @@ class Trainer:
             self.load_extra_state(tr.get("extra_state"))
             for name in ENV_ARRAYS:
                 setattr(batch, name, env[name].numpy().astype(getattr(batch, name).dtype, copy=True))
+            if all(name in env for name in HEADING_ARRAYS):
+                for name in HEADING_ARRAYS:
+                    setattr(batch, name, env[name].numpy().astype(getattr(batch, name).dtype, copy=True))
+            else:
+                batch.heading[:] = batch.state[:, 8]
             batch.target_radius = float(env["target_radius"])
             self.env._started = bool(env["started"])
             _load_randomization_state(batch, env, source)
