@@ -146,7 +146,7 @@ class CommandHandlers:
         else:
             alt = float(s[2]) + self.params["MIS_TAKEOFF_ALT"]
         if alt <= s[2]:
-            return DENIED, "Takeoff denied: already higher than takeoff altitude"
+            return DENIED, "Takeoff denied: already higher than that"  # ≤ 50 chars: STATUSTEXT
         goal = np.array([self.mover.ref[0], self.mover.ref[1], alt])
         if (fence := navigator.outside_fence(goal, self.params)) is not None:
             return DENIED, f"Takeoff denied: {fence}"
