@@ -1,4 +1,5 @@
-"""The README's pictures in docs/media/ (made by docs/media/make_media.py): each is there, small,
+"""The README's pictures in docs/media/ (made by docs/media/make_media.py; the commanded flight by
+docs/ground_station_gif.py): each is there, small,
 of the size and length it was made with, and drawn (not blank). Reads the files only: no flight,
 no training, well under a second."""
 
@@ -17,6 +18,7 @@ EXPECTED = {
     "circle.gif": (480, 360, 300, 1_500_000),  # two laps, 12.6 s at 25 fps
     "montage.gif": (720, 320, 90, 1_500_000),  # 5 s at 20 fps, three panels
     "curves.png": (720, 250, 1, 200_000),
+    "commanded_flight.gif": (720, 340, 120, 1_500_000),  # docs/ground_station_gif.py: ~12 s at 10 fps
 }
 
 
