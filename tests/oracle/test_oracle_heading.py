@@ -113,3 +113,19 @@ def test_the_fallback_holds_the_commanded_heading_in_a_version_two_observation(h
         state, rotor = dynamics.step(state, rotor, ctrl.act(obs)[None].astype(np.float64), params, 0.01)
     assert state[0, 8] == pytest.approx(ends_at, abs=math.radians(2.0))
     assert abs(state[0, 11]) < 0.05 and np.linalg.norm(state[0, 0:3] - target) < 0.05
+
+
+def test_the_circle_reward_pays_the_same_heading_term():
+    """Circle's reward is hover's towards the moving point plus its own terms: the heading term
+    (and the yaw-rate charge) come with it."""
+    from quadpilot.core.reward import circle_reward
+
+    cfg = RewardConfig()
+    s = np.zeros((2, 12))
+    s[:, 0], s[:, 2], s[:, 4], s[:, 11] = 1.0, 2.0, 1.0, 1.5  # on the circle, at its speed, turning
+    pos_err, crash, centre = np.zeros((2, 3)), np.zeros(2, bool), np.array([0.0, 0.0, 2.0])
+    head = np.array([0.0, 0.5])
+    with_heading = circle_reward(s, pos_err, crash, centre, 1.0, 1.0, cfg, head)
+    without = circle_reward(s, pos_err, crash, centre, 1.0, 1.0, cfg)
+    extra = cfg.heading_weight * np.exp(-(head**2) / cfg.heading_sigma**2) - cfg.yaw_rate_weight * 1.5**2
+    np.testing.assert_allclose(with_heading - without, extra, rtol=1e-12)
