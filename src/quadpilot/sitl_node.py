@@ -149,7 +149,9 @@ def misused(args) -> str | None:
 
 def flight_summary(log, monitor, policy_period_s: float) -> dict:
     """What the run prints and writes to --json (see the module docstring)."""
-    states = np.asarray(log.states, np.float64).reshape(-1, 12)
+    from quadpilot.core.state import POS, STATE_DIM, YAW, R
+
+    states = np.asarray(log.states, np.float64).reshape(-1, STATE_DIM)
     targets = np.asarray(log.targets, np.float64).reshape(-1, 3)
     step_s = log.step_s
     fallback = log.replies - log.steps + sum(1 for s in log.sources if s not in NOT_FLOWN_BY_FALLBACK)
@@ -183,14 +185,14 @@ def flight_summary(log, monitor, policy_period_s: float) -> dict:
         "monitor_events": dict(monitor.events),
     }
     if len(states):
-        dist = np.linalg.norm(states[:, 0:3] - targets, axis=1)
+        dist = np.linalg.norm(states[:, POS] - targets, axis=1)
         k = max(1, round(JUDGED_WINDOW_S / step_s)) if step_s > 0 else len(states)
         out["error_last_2s_m"] = float(dist[-k:].mean())
         out["final_error_m"] = float(dist[-1])
         # |r|: the sign does not matter, and a simulator that sends HIL_STATE_QUATERNION's rates in
         # FLU instead of FRD (RotorPy 3.0.0) flips only the sign of q and r
-        out["mean_abs_yaw_rate_last_2s_radps"] = float(np.abs(states[-k:, 11]).mean())
-        turn = states[-1, 8] - states[0, 8]
+        out["mean_abs_yaw_rate_last_2s_radps"] = float(np.abs(states[-k:, R]).mean())
+        turn = states[-1, YAW] - states[0, YAW]
         out["yaw_change_deg"] = float(np.degrees(math.atan2(math.sin(turn), math.cos(turn))))
     return out
 

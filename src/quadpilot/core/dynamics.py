@@ -8,6 +8,8 @@ State, shape (N, 12), world frame ENU (z up), body frame FLU (x forward, y left,
                      with FLU, positive pitch is nose down and accelerates the vehicle along +x)
     p, q, r          body rates, rad/s
 
+Index it with the names of `core.state` (X … R, POS, VEL, ATT, RATES), the one place that names them.
+
 Rotor state, shape (N, M): normalised rotor speed ω/ω_max, only dynamic when a motor time
 constant is set. Command, shape (N, M): normalised rotor speed ω/ω_max in [0, 1], the
 convention of PX4's HIL_ACTUATOR_CONTROLS (thrust ∝ command²), in the vehicle's actuator output
@@ -46,13 +48,15 @@ import numpy as np
 from .params import NUM_MOTORS as NUM_MOTORS  # re-exported: the rotor count the contract carries
 from .params import ParamBatch
 
-STATE_DIM = 12
-STATE_NAMES = ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r")
-POS = slice(0, 3)
-VEL = slice(3, 6)
-ATT = slice(6, 9)
-RATES = slice(9, 12)
-IDX = {name: i for i, name in enumerate(STATE_NAMES)}
+# The state's layout is named in one place, `core.state`; these are re-exported for the callers
+# that read them here.
+from .state import ATT as ATT
+from .state import IDX as IDX
+from .state import POS as POS
+from .state import RATES as RATES
+from .state import STATE_DIM as STATE_DIM
+from .state import STATE_NAMES as STATE_NAMES
+from .state import VEL as VEL
 
 # PX4's quad-X (`core.params.quad_x`): rotor positions as multiples of arm/√2 in the FLU body frame,
 # and spin (+1 = CCW seen from above), in its output order. The layout of the presets and of every

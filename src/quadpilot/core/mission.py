@@ -34,6 +34,7 @@ import numpy as np
 
 from .reward import RewardConfig, circle_errors, crashed
 from .start import sample_ball, sample_start_states
+from .state import POS, YAW, R
 
 TASKS = ("hover", "waypoint", "circle")
 SUCCESS_TOLERANCE_M = 0.05
@@ -136,8 +137,8 @@ def yaw_errors(states: np.ndarray, heading) -> tuple[np.ndarray, np.ndarray]:
     With both angles in [−π, π], d = |ψ − ψ_cmd| ≤ 2π and the wrapped error is min(d, 2π − d): the
     training environments compute this every step, so it avoids a modulo."""
     states = np.asarray(states)
-    d = np.abs(states[..., 8] - heading)
-    return np.abs(states[..., 11]), np.minimum(d, 2.0 * math.pi - d)
+    d = np.abs(states[..., YAW] - heading)
+    return np.abs(states[..., R]), np.minimum(d, 2.0 * math.pi - d)
 
 
 def holds_heading(mean_abs_yaw_rate, mean_abs_heading_error):
@@ -177,8 +178,8 @@ def judge(
     states = np.asarray(states, np.float64)
     if states.ndim != 2 or states.shape[0] == 0:
         return {"steps": 0, "success": False, "crashed": False, "rms_error_m": math.nan, "final_distance_m": math.nan}
-    heading = float(wrap_angle(states[0, 8] if heading is None else heading))
-    err = states[:, 0:3] - np.broadcast_to(np.asarray(targets, np.float64), states[:, 0:3].shape)
+    heading = float(wrap_angle(states[0, YAW] if heading is None else heading))
+    err = states[:, POS] - np.broadcast_to(np.asarray(targets, np.float64), states[:, POS].shape)
     dist = np.linalg.norm(err, axis=1)
     crash = bool(crashed(states, err, reward or RewardConfig()).any())
     k = max(1, round(window_s / dt))

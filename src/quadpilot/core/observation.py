@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dynamics import STATE_DIM
 from .frames import euler_to_rotmat, world_to_body
+from .state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
 
 
 @dataclass(frozen=True)
@@ -118,9 +118,9 @@ def build_observation(
         out = np.empty((n, layout.dim), dtype=np.float32)
     elif out.shape != (n, layout.dim):
         raise ValueError(f"out must have shape ({n}, {layout.dim}), got {out.shape}")
-    rot = euler_to_rotmat(state[:, 6], state[:, 7], state[:, 8])
-    out[:, 0:3] = world_to_body(rot, state[:, 0:3] - target_pos)
-    out[:, 3:6] = world_to_body(rot, state[:, 3:6])
+    rot = euler_to_rotmat(state[:, ROLL], state[:, PITCH], state[:, YAW])
+    out[:, 0:3] = world_to_body(rot, state[:, POS] - target_pos)
+    out[:, 3:6] = world_to_body(rot, state[:, VEL])
     if heading is None:
         out[:, 6:15] = rot.reshape(n, 9)
     else:  # Rz(−ψ_cmd)·R: the first two rows turned by −ψ_cmd, the third unchanged
@@ -131,7 +131,7 @@ def build_observation(
         out[:, 6:9] = c * rot[:, 0, :] + s * rot[:, 1, :]
         out[:, 9:12] = -s * rot[:, 0, :] + c * rot[:, 1, :]
         out[:, 12:15] = rot[:, 2, :]
-    out[:, 15:18] = state[:, 9:12]
+    out[:, 15:18] = state[:, RATES]
     if target_vel is not None:
         out[:, 18:21] = world_to_body(rot, np.broadcast_to(target_vel, (n, 3)))
     return out

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .state import PITCH, RATES, ROLL, VX, VY, R, X, Y, Z
+
 
 @dataclass(frozen=True)
 class RewardConfig:
@@ -80,9 +82,9 @@ def crashed(state: np.ndarray, pos_error: np.ndarray, cfg: RewardConfig) -> np.n
     """(N,) bool: altitude below ground, tilt beyond the limit, or outside the flight area."""
     dist_sq = np.einsum("ij,ij->i", pos_error, pos_error)
     return (
-        (state[:, 2] < 0.0)
-        | (np.abs(state[:, 6]) > cfg.max_tilt)
-        | (np.abs(state[:, 7]) > cfg.max_tilt)
+        (state[:, Z] < 0.0)
+        | (np.abs(state[:, ROLL]) > cfg.max_tilt)
+        | (np.abs(state[:, PITCH]) > cfg.max_tilt)
         | ~(dist_sq <= cfg.max_distance**2)  # NaN counts as out
     )
 
@@ -94,8 +96,10 @@ def hover_reward(
     heading_error (N,) rad, wrapped: yaw minus the commanded heading (None: no heading to hold, the
     reward of the version-1 policies)."""
     d2 = np.einsum("ij,ij->i", pos_error, pos_error)
-    w2 = np.einsum("ij,ij->i", state[:, 9:12], state[:, 9:12])
-    over = np.maximum(np.maximum(np.abs(state[:, 6]), np.abs(state[:, 7])) - math.radians(cfg.tilt_soft_deg), 0.0)
+    w2 = np.einsum("ij,ij->i", state[:, RATES], state[:, RATES])
+    over = np.maximum(
+        np.maximum(np.abs(state[:, ROLL]), np.abs(state[:, PITCH])) - math.radians(cfg.tilt_soft_deg), 0.0
+    )
     r = (
         cfg.pos_coarse_weight * gaussian(d2, cfg.pos_coarse_sigma)
         + cfg.pos_fine_weight * gaussian(d2, cfg.pos_fine_sigma)
@@ -106,7 +110,7 @@ def hover_reward(
         r = (
             r
             + cfg.heading_weight * gaussian(heading_error * heading_error, cfg.heading_sigma)
-            - cfg.yaw_rate_weight * state[:, 11] * state[:, 11]
+            - cfg.yaw_rate_weight * state[:, R] * state[:, R]
         )
     return np.where(crash, r - cfg.crash_penalty, r)
 
@@ -117,9 +121,9 @@ def circle_errors(state: np.ndarray, center: np.ndarray, radius, speed) -> tuple
     radius error = ρ − R with ρ the horizontal distance to the centre; tangential speed is
     (r × v)_z / ρ, positive counter-clockwise seen from above, so the error is that minus the
     desired speed (seed 001 writes x·v_y − y·x_v − R·v, the same up to the factor ρ)."""
-    dx, dy = state[:, 0] - center[..., 0], state[:, 1] - center[..., 1]
+    dx, dy = state[:, X] - center[..., 0], state[:, Y] - center[..., 1]
     rho = np.sqrt(dx * dx + dy * dy)
-    v_tan = (dx * state[:, 4] - dy * state[:, 3]) / np.maximum(rho, 1e-6)
+    v_tan = (dx * state[:, VY] - dy * state[:, VX]) / np.maximum(rho, 1e-6)
     return rho - radius, v_tan - speed
 
 

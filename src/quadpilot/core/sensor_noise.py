@@ -33,8 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .state import ATT, POS, RATES, VEL
+
 DEG = math.pi / 180.0
-G = 9.81  # m/s², as core.params.GRAVITY (kept local: this module imports nothing of ours)
+G = 9.81  # m/s², as core.params.GRAVITY (kept local: this module imports only core.state)
 
 
 @dataclass(frozen=True)
@@ -312,10 +314,10 @@ class SensorNoiseState:
         array, position, velocity and attitude with their errors, body rates from the gyro."""
         s = slice(None) if idx is None else idx
         out = np.array(state, copy=True)
-        out[:, 0:3] += self.slow[s, 6:9] + self.white[s, 6:9]
-        out[:, 3:6] += self.slow[s, 9:12] + self.white[s, 9:12]
-        out[:, 6:9] += self.slow[s, 12:15]
-        out[:, 9:12] = self.gyro(state[:, 9:12], idx)
+        out[:, POS] += self.slow[s, 6:9] + self.white[s, 6:9]
+        out[:, VEL] += self.slow[s, 9:12] + self.white[s, 9:12]
+        out[:, ATT] += self.slow[s, 12:15]
+        out[:, RATES] = self.gyro(state[:, RATES], idx)
         return out
 
     @property

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from .dynamics import STATE_DIM
+from .state import POS, RATES, ROLL_PITCH, STATE_DIM, VEL, YAW
 
 
 def sample_ball(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
@@ -31,9 +31,9 @@ def sample_start_states(
     k = centres.shape[0]
     tilt = math.radians(tilt_deg)
     s = np.zeros((k, STATE_DIM))
-    s[:, 0:3] = centres + sample_ball(rng, k, pos_radius)
-    s[:, 3:6] = rng.uniform(-vel, vel, (k, 3))
-    s[:, 6:8] = rng.uniform(-tilt, tilt, (k, 2))
-    s[:, 8] = rng.uniform(-np.pi, np.pi, k)
-    s[:, 9:12] = rng.uniform(-rate, rate, (k, 3)) if rate > 0 else 0.0
+    s[:, POS] = centres + sample_ball(rng, k, pos_radius)
+    s[:, VEL] = rng.uniform(-vel, vel, (k, 3))
+    s[:, ROLL_PITCH] = rng.uniform(-tilt, tilt, (k, 2))
+    s[:, YAW] = rng.uniform(-np.pi, np.pi, k)
+    s[:, RATES] = rng.uniform(-rate, rate, (k, 3)) if rate > 0 else 0.0
     return s

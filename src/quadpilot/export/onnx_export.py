@@ -31,6 +31,7 @@ from torch.nn import functional as F
 
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
+from quadpilot.core.state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
 from quadpilot.train.checkpoint import CheckpointError, TrainedPolicy, atomic_write, load_checkpoint
 from quadpilot.train.envs import QuadBatch
 
@@ -205,13 +206,13 @@ def reference_commands(policy: TrainedPolicy, obs: np.ndarray, starts: np.ndarra
 
 def _edge_observations(cfg, k: int, rng: np.random.Generator) -> np.ndarray:
     """(k, obs_dim): positions up to the 5 m flight-area limit, ±5 m/s, any attitude, ±10 rad/s."""
-    state = np.zeros((k, 12))
-    state[:, 0:3] = rng.uniform(-5.0, 5.0, (k, 3))
-    state[:, 3:6] = rng.uniform(-5.0, 5.0, (k, 3))
-    state[:, 6] = rng.uniform(-np.pi, np.pi, k)
-    state[:, 7] = rng.uniform(-np.pi / 2 + 0.01, np.pi / 2 - 0.01, k)
-    state[:, 8] = rng.uniform(-np.pi, np.pi, k)
-    state[:, 9:12] = rng.uniform(-10.0, 10.0, (k, 3))
+    state = np.zeros((k, STATE_DIM))
+    state[:, POS] = rng.uniform(-5.0, 5.0, (k, 3))
+    state[:, VEL] = rng.uniform(-5.0, 5.0, (k, 3))
+    state[:, ROLL] = rng.uniform(-np.pi, np.pi, k)
+    state[:, PITCH] = rng.uniform(-np.pi / 2 + 0.01, np.pi / 2 - 0.01, k)
+    state[:, YAW] = rng.uniform(-np.pi, np.pi, k)
+    state[:, RATES] = rng.uniform(-10.0, 10.0, (k, 3))
     target_vel = rng.uniform(-2.0, 2.0, (k, 3)) if cfg.layout.dim == 21 else None
     return build_observation(state, np.zeros(3), target_vel)
 

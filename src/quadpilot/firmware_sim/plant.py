@@ -15,6 +15,7 @@ import numpy as np
 from quadpilot.core import dynamics
 from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
 from quadpilot.core.params import ParamBatch, VehicleParams
+from quadpilot.core.state import ATT, PITCH, RATES, ROLL, VEL, VX, VY, VZ, YAW, R, X, Y, Z
 from quadpilot.link import wire
 
 from . import sensors
@@ -150,7 +151,7 @@ class Plant:
             armed=None if armed else _MOTORS_OFF,
         )
         self.state, self.rotor = s[0], w[0]
-        if before[2] >= GROUND_Z > self.state[2]:  # the free step would cross the plane downwards
+        if before[Z] >= GROUND_Z > self.state[Z]:  # the free step would cross the plane downwards
             self._touch_ground(before, self.state)
         elif self.on_ground:
             self.on_ground, self.impact_speed, self._contact_acc = False, 0.0, None
@@ -159,7 +160,7 @@ class Plant:
     def _touch_ground(self, before: np.ndarray, s: np.ndarray) -> None:
         """Resolve the contact of the step from `before` whose free-flight end is `s`, in place (see
         the class docstring): velocity impulses, then the position they give, then the level stance."""
-        vx, vy, vz = v_free = s[3:6].tolist()
+        vx, vy, vz = v_free = s[VEL].tolist()
         normal = max(-vz, 0.0)  # m/s, the normal impulse per unit mass: it stops the descent
         slip = math.hypot(vx, vy)
         limit = self.ground_friction * normal  # m/s, Coulomb: friction impulse ≤ μ · normal impulse
@@ -172,23 +173,23 @@ class Plant:
         # The velocity changed by a constant impulse over the step: the position moves by the mean of
         # the start and end velocities (core.dynamics' constant-acceleration formula, with the
         # friction added); the height is the plane's.
-        s[0] = before[0] + 0.5 * h * (before[3] + vx)
-        s[1] = before[1] + 0.5 * h * (before[4] + vy)
-        s[2] = GROUND_Z
-        s[3], s[4], s[5] = vx, vy, vz + normal
-        s[6] = s[7] = 0.0  # standing level on its landing gear; the yaw stays
-        s[9:12] = 0.0
+        s[X] = before[X] + 0.5 * h * (before[VX] + vx)
+        s[Y] = before[Y] + 0.5 * h * (before[VY] + vy)
+        s[Z] = GROUND_Z
+        s[VX], s[VY], s[VZ] = vx, vy, vz + normal
+        s[ROLL] = s[PITCH] = 0.0  # standing level on its landing gear; the yaw stays
+        s[RATES] = 0.0
         self.on_ground = True
         self.impact_speed = normal
-        self._contact_acc = (s[3:6] - np.asarray(v_free)) / h
+        self._contact_acc = (s[VEL] - np.asarray(v_free)) / h
 
     def _support(self) -> np.ndarray | None:
         """m/s², world ENU: the ground's force / mass holding a resting vehicle where it is, under
         its rotors, gravity and the air: the normal force cancels the net downward force, friction the
         horizontal one up to μ times the normal force. None when nothing presses it down."""
         v = self.vehicle
-        thrust_up = euler_to_rotmat(*self.state[6:9])[:, 2] * (self.thrust_n / v.mass)
-        net = thrust_up + v.drag * (self.air - self.state[3:6]) / v.mass
+        thrust_up = euler_to_rotmat(*self.state[ATT])[:, 2] * (self.thrust_n / v.mass)
+        net = thrust_up + v.drag * (self.air - self.state[VEL]) / v.mass
         net[2] -= v.gravity
         if net[2] >= 0.0:
             return None
@@ -199,14 +200,14 @@ class Plant:
 
     def _keep_in_domain(self, s: np.ndarray) -> None:
         """Saturate the body rates and canonicalise roll and pitch, in place (class docstring)."""
-        roll, pitch, _, p, q, r = s[6:12].tolist()  # plain floats: comparisons cheaper than numpy's
+        roll, pitch, _, p, q, r = s[ROLL : R + 1].tolist()  # plain floats: comparisons cheaper than numpy's
         lim = wire.MAX_BODY_RATE
         if not (-lim <= p <= lim and -lim <= q <= lim and -lim <= r <= lim):
-            np.clip(s[9:12], -lim, lim, out=s[9:12])
+            np.clip(s[RATES], -lim, lim, out=s[RATES])
             self.rate_limited_steps += 1
         if not (-math.pi <= roll <= math.pi and -_HALF_PI <= pitch <= _HALF_PI):
-            angles = rotmat_to_euler(euler_to_rotmat(s[6], s[7], s[8]))
-            s[6:9] = [float(a) for a in angles]
+            angles = rotmat_to_euler(euler_to_rotmat(s[ROLL], s[PITCH], s[YAW]))
+            s[ATT] = [float(a) for a in angles]
 
     @property
     def thrust_n(self) -> float:
@@ -223,11 +224,11 @@ class Plant:
 
 def resting_on_ground(state: np.ndarray) -> bool:
     """A 12-state standing still on the ground plane: at its height, with no velocity (a landed start)."""
-    return bool(state[2] == GROUND_Z and not np.any(state[3:6]))
+    return bool(state[Z] == GROUND_Z and not np.any(state[VEL]))
 
 
 def landed_state(yaw: float = 0.0) -> np.ndarray:
     """(12,) at rest on the ground at the home position (the local origin), level, heading `yaw` (rad, ENU)."""
     s = np.zeros(dynamics.STATE_DIM)
-    s[2], s[8] = GROUND_Z, yaw
+    s[Z], s[YAW] = GROUND_Z, yaw
     return s

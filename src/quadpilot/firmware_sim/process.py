@@ -28,6 +28,7 @@ import numpy as np
 
 from quadpilot.core import dynamics
 from quadpilot.core.reward import RewardConfig, crashed
+from quadpilot.core.state import POS
 from quadpilot.link.transport import Address, Listener, PeerClosed
 
 from .config import SimConfig
@@ -145,7 +146,7 @@ class Simulator:
             self._io.count("truncated_datagram", link.truncated_datagrams, ep)
             self._io.count("oversized_datagram", link.oversized_datagrams, ep)
             link.foreign_datagrams = link.truncated_datagrams = link.oversized_datagrams = 0
-        err = float(np.linalg.norm(plant.state[0:3] - self._target))
+        err = float(np.linalg.norm(plant.state[POS] - self._target))
         jitter = None
         if len(ep.step_times) > 2:
             dev = np.abs(np.diff(ep.step_times) - cfg.dt) * 1e3

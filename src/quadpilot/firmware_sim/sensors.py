@@ -14,6 +14,7 @@ import numpy as np
 
 from quadpilot.core.frames import euler_to_rotmat
 from quadpilot.core.sensor_noise import ADIS16448, SensorNoise, SensorNoiseState
+from quadpilot.core.state import PITCH, RATES, ROLL, VEL, YAW, Z
 
 MAG_NED_GAUSS = (0.214, 0.012, 0.433)
 """gauss, Earth's field (north, east, down) at PX4's default SITL home (Zürich, 47.40° N 8.55° E):
@@ -65,7 +66,7 @@ def isa_temperature_c(alt_msl_m: float) -> float:
 
 def world_to_body(state: np.ndarray, v_world) -> np.ndarray:
     """A world ENU vector (3,) in the body FLU frame of a 12-state: Rᵀ·v."""
-    r = euler_to_rotmat(state[6], state[7], state[8])
+    r = euler_to_rotmat(state[ROLL], state[PITCH], state[YAW])
     return r.T @ np.asarray(v_world, np.float64)
 
 
@@ -84,7 +85,7 @@ def specific_force_flu(
     on the ground, it is (0, 0, +g); in free fall, zero."""
     f = np.array([0.0, 0.0, thrust_n / mass])
     if drag:
-        f += world_to_body(state, drag * (np.asarray(wind_enu, np.float64) - state[3:6]) / mass)
+        f += world_to_body(state, drag * (np.asarray(wind_enu, np.float64) - state[VEL]) / mass)
     if contact_enu is not None:
         f += world_to_body(state, contact_enu)
     return f
@@ -130,7 +131,7 @@ class Sensors:
 
     def read(self, state: np.ndarray, specific_force: np.ndarray, n: int) -> Reading:
         """Step `n`'s reading of the 12-state `state` whose ideal accelerometer reads `specific_force`."""
-        gyro, accel, estimate = state[9:12].copy(), specific_force, None
+        gyro, accel, estimate = state[RATES].copy(), specific_force, None
         noise = self.noise
         if noise is not None:  # core.sensor_noise, as in training: advance one dt, then measure
             if n > 0:
@@ -139,7 +140,7 @@ class Sensors:
                 gyro, accel = noise.gyro(gyro[None])[0], noise.accel(accel[None])[0]
             if self.estimator:
                 estimate = noise.estimate(state[None])[0]
-        alt = self.home_alt_m + float(state[2])
+        alt = self.home_alt_m + float(state[Z])
         return Reading(
             gyro, accel, magnetometer_flu(state), isa_pressure_hpa(alt), alt, isa_temperature_c(alt), estimate
         )

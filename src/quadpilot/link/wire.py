@@ -43,6 +43,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
+from quadpilot.core.state import PITCH, POS, RATES, ROLL, VEL, YAW, Z
 
 # the frames (`link.frames`); the `X as X` ones are not used here, only re-exported: the rest of
 # the project reads every conversion of the wire from this module
@@ -266,8 +267,8 @@ def gyro_from_hil_sensor(msg) -> np.ndarray:
 @_saturating(mavlink2.MAVLink_hil_gps_message)
 def hil_gps_fields(state: np.ndarray, home: Home, time_usec: int) -> dict:
     """Keyword arguments of `mav.hil_gps_send` (3-D fix, 10 satellites, eph/epv 0.3 m)."""
-    lat, lon, alt = local_to_geodetic(state[0:3], home)
-    vn, ve, vd = (float(v) for v in enu_to_ned(state[3:6]))
+    lat, lon, alt = local_to_geodetic(state[POS], home)
+    vn, ve, vd = (float(v) for v in enu_to_ned(state[VEL]))
     course = math.degrees(math.atan2(ve, vn)) % 360.0
     return {
         "time_usec": int(time_usec),
@@ -425,7 +426,7 @@ UINT16_UNKNOWN = 65535
 def attitude_ned_frd(state: np.ndarray) -> tuple[float, float, float]:
     """(roll, pitch, yaw) rad of body FRD relative to NED, as MAVLink's ATTITUDE reports it, from
     the 12-state's ENU/FLU Euler angles."""
-    r = rotmat_enu_flu_to_ned_frd(euler_to_rotmat(state[6], state[7], state[8]))
+    r = rotmat_enu_flu_to_ned_frd(euler_to_rotmat(state[ROLL], state[PITCH], state[YAW]))
     roll, pitch, yaw = rotmat_to_euler(r)
     return float(roll), float(pitch), float(yaw)
 
@@ -434,7 +435,7 @@ def attitude_ned_frd(state: np.ndarray) -> tuple[float, float, float]:
 def attitude_fields(state: np.ndarray, time_boot_ms: int) -> dict:
     """Keyword arguments of `mav.attitude_send` (ATTITUDE: NED/FRD angles and FRD rates, rad)."""
     roll, pitch, yaw = attitude_ned_frd(state)
-    rates = flu_to_frd(state[9:12])
+    rates = flu_to_frd(state[RATES])
     return {
         "time_boot_ms": int(time_boot_ms) & 0xFFFFFFFF,
         "roll": roll,
@@ -472,7 +473,7 @@ def sys_status_fields(sensors: int, errors: int, received: int) -> dict:
 @_saturating(mavlink2.MAVLink_local_position_ned_message)
 def local_position_ned_fields(state: np.ndarray, time_boot_ms: int) -> dict:
     """Keyword arguments of `mav.local_position_ned_send` (m and m/s, local NED at home)."""
-    p, v = enu_to_ned(state[0:3]), enu_to_ned(state[3:6])
+    p, v = enu_to_ned(state[POS]), enu_to_ned(state[VEL])
     return {
         "time_boot_ms": int(time_boot_ms) & 0xFFFFFFFF,
         "x": float(p[0]),
@@ -488,15 +489,15 @@ def local_position_ned_fields(state: np.ndarray, time_boot_ms: int) -> dict:
 def global_position_int_fields(state: np.ndarray, home: Home, time_boot_ms: int) -> dict:
     """Keyword arguments of `mav.global_position_int_send`: lat/lon degE7, alt mm MSL,
     relative_alt mm above home, vx/vy/vz cm/s NED, hdg cdeg (yaw from north, 0..35999)."""
-    lat, lon, alt = local_to_geodetic(state[0:3], home)
-    v = enu_to_ned(state[3:6])
+    lat, lon, alt = local_to_geodetic(state[POS], home)
+    v = enu_to_ned(state[VEL])
     yaw = attitude_ned_frd(state)[2]
     return {
         "time_boot_ms": int(time_boot_ms) & 0xFFFFFFFF,
         "lat": lat,
         "lon": lon,
         "alt": alt,
-        "relative_alt": round(float(state[2]) * 1000.0),
+        "relative_alt": round(float(state[Z]) * 1000.0),
         "vx": _cm(v[0]),
         "vy": _cm(v[1]),
         "vz": _cm(v[2]),

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from quadpilot.core.state import POS, RATES, STATE_DIM, VEL, YAW, Z
 from quadpilot.link.frames import Home
 
 from . import missions, navigator, streams
@@ -262,8 +263,8 @@ class Commander(CommandHandlers):
     # --- arming, missions ----------------------------------------------------------------------------
     def _arm(self) -> None:
         self.armed, self.flown, self.armed_at = True, False, self.now
-        self.mover.reset(self.state[0:3])
-        self.yaw = float(self.state[8])
+        self.mover.reset(self.state[POS])
+        self.yaw = float(self.state[YAW])
         self.nav.hold()
         if self.mode == MISSION and self.missions.items:
             self._start_mission(None)
@@ -275,7 +276,7 @@ class Commander(CommandHandlers):
         self.armed, self.motors = False, False
         self.nav.hold()
         if self.state is not None:
-            self.mover.reset(self.state[0:3])
+            self.mover.reset(self.state[POS])
         self._leave_mission()
         self.failsafe = None
         self.nav.freeze(False)
@@ -288,7 +289,7 @@ class Commander(CommandHandlers):
         heartbeat a ground station hears already says armed."""
         if state is not None:
             s = np.asarray(state, np.float64)
-            if s.shape != (12,) or not np.all(np.isfinite(s)):
+            if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s)):
                 raise BadVehicleState(f"vehicle state {s.tolist()}: expected 12 finite numbers (link.wire checks them)")
             self.state = s
         if self.state is None:
@@ -380,7 +381,7 @@ class Commander(CommandHandlers):
         and the collective thrust fraction last commanded (setpoint.collective_thrust). Returns the
         messages to send; `setpoint` is then the target for the policy."""
         s = np.asarray(state, np.float64)
-        if s.shape != (12,) or not np.all(np.isfinite(s)):
+        if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s)):
             raise BadVehicleState(f"vehicle state {s.tolist()}: expected 12 finite numbers (link.wire checks them)")
         if not math.isfinite(thrust) or not math.isfinite(now):
             raise BadVehicleState(f"thrust {thrust}, time {now}: expected finite numbers")
@@ -388,7 +389,7 @@ class Commander(CommandHandlers):
         self._last_step, self.now, self.state, self.home = now, now, s, home
         p = self.params
         if not self.armed:
-            self.mover.reset(s[0:3])
+            self.mover.reset(s[POS])
         limits = LandLimits(
             p["MPC_THR_MIN"],
             p["MPC_THR_HOVER"],
@@ -400,7 +401,7 @@ class Commander(CommandHandlers):
         )
         was = self.landed
         self.landed = self.detector.update(
-            now, self.armed, float(s[2]), s[3:6], s[9:12], thrust if self.motors else 0.0, self.nav.landing, limits
+            now, self.armed, float(s[Z]), s[VEL], s[RATES], thrust if self.motors else 0.0, self.nav.landing, limits
         )
         if self.armed and was and not self.landed:
             self.flown = True
@@ -408,7 +409,7 @@ class Commander(CommandHandlers):
         elif self.armed and self.landed and not was:
             self.landed_at = now
             self._text("Landing detected")
-        for tag in self.nav.update(now, dt, s[0:3], self.landed):
+        for tag in self.nav.update(now, dt, s[POS], self.landed):
             if tag == "takeoff":
                 self._set_mode(HOLD)
             elif isinstance(tag, tuple) and tag[0] == "item":

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from quadpilot.core.state import POS_XY, Z
 from quadpilot.link.frames import geodetic_to_local
 
 from . import missions, navigator, streams
@@ -111,8 +112,8 @@ class CommandHandlers:
         if self.state is None or self.home is None:
             return "no position yet"
         g = self.cfg.ground_alt_max_m
-        if g is not None and self.state[2] > g:
-            return f"not on the ground ({self.state[2]:.1f} m above home)"
+        if g is not None and self.state[Z] > g:
+            return f"not on the ground ({self.state[Z]:.1f} m above home)"
         if self.failsafe:
             return "failsafe active"
         return None
@@ -144,8 +145,8 @@ class CommandHandlers:
         elif self.mode == TAKEOFF and self.nav.taking_off:
             return ACCEPTED, None  # the same take-off again
         else:
-            alt = float(s[2]) + self.params["MIS_TAKEOFF_ALT"]
-        if alt <= s[2]:
+            alt = float(s[Z]) + self.params["MIS_TAKEOFF_ALT"]
+        if alt <= s[Z]:
             return DENIED, "Takeoff denied: already higher than that"  # ≤ 50 chars: STATUSTEXT
         goal = np.array([self.mover.ref[0], self.mover.ref[1], alt])
         if (fence := navigator.outside_fence(goal, self.params)) is not None:
@@ -161,7 +162,7 @@ class CommandHandlers:
         if self.mode == LAND:
             return ACCEPTED, None
         self._leave_mission()
-        self.nav.start(navigator.land_legs(self.state[0:2]))
+        self.nav.start(navigator.land_legs(self.state[POS_XY]))
         self._set_mode(LAND)
         return ACCEPTED, None
 

@@ -77,6 +77,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.dynamics import NUM_MOTORS
 from quadpilot.core.observation import build_observation
+from quadpilot.core.state import POS, RATES, YAW
 from quadpilot.link import transport, wire
 
 from .commander import Commander
@@ -443,9 +444,9 @@ class _Flight:
             if self.gcs is not None:
                 self.gcs.home = home
         if self.fixed is None:  # hold the first valid position
-            self.fixed = self.target = new[0:3].copy()
+            self.fixed = self.target = new[POS].copy()
         if self.heading is None:  # hold the first valid heading
-            self.heading = float(new[8])
+            self.heading = float(new[YAW])
         self.state = new
         self.state_time = msg.time_usec
         self.last_state_at = time.monotonic()
@@ -481,7 +482,7 @@ class _Flight:
             self.held_source = monitor.source
         elif tick:
             s = (self.estimate if self.estimate_time == t_us else state).copy()
-            s[9:12] = wire.gyro_from_hil_sensor(msg)
+            s[RATES] = wire.gyro_from_hil_sensor(msg)
             run = True
             heading = self.heading
             if commander is not None:
@@ -498,7 +499,7 @@ class _Flight:
                 target, target_vel = self.targets(round((t_us - self.first_us) / self.period_us))
             self.target = target
             if run:
-                heading = heading_within_reach(float(s[8]), heading) if self.heading_frame else None
+                heading = heading_within_reach(float(s[YAW]), heading) if self.heading_frame else None
                 obs = build_observation(s[None], target, target_vel, heading=heading)[0]
                 cmd = self.held = monitor.act(obs)
                 self.held_source = monitor.source

@@ -19,6 +19,7 @@ import math
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from quadpilot.core.state import PITCH, POS, RATES, ROLL, VEL, YAW
 from quadpilot.link import wire
 from quadpilot.link.frames import Home, enu_to_ned, flu_to_frd, local_to_geodetic, ned_frd_quaternion
 
@@ -132,8 +133,8 @@ def home_position(mav, home: Home, now: float):
 def gps_raw_int(mav, state: np.ndarray, home: Home, now: float):
     """GPS_RAW_INT: a 3-D fix at the state's position (the simulator's GPS is exact to the wire's
     quantum), 10 satellites, 0.3 m accuracy as the simulator's HIL_GPS reports it."""
-    lat, lon, alt = local_to_geodetic(state[0:3], home)
-    vn, ve, _ = (float(v) for v in enu_to_ned(state[3:6]))
+    lat, lon, alt = local_to_geodetic(state[POS], home)
+    vn, ve, _ = (float(v) for v in enu_to_ned(state[VEL]))
     return mav.gps_raw_int_encode(
         int(now * 1e6),
         M.GPS_FIX_TYPE_3D_FIX,
@@ -163,8 +164,8 @@ def attitude(mav, state: np.ndarray, now: float):
 
 
 def attitude_quaternion(mav, state: np.ndarray, now: float):
-    q = ned_frd_quaternion(float(state[6]), float(state[7]), float(state[8]))
-    p, r_q, r = (float(v) for v in flu_to_frd(state[9:12]))
+    q = ned_frd_quaternion(float(state[ROLL]), float(state[PITCH]), float(state[YAW]))
+    p, r_q, r = (float(v) for v in flu_to_frd(state[RATES]))
     return mav.attitude_quaternion_encode(_ms(now), *q, p, r_q, r, [0.0, 0.0, 0.0, 0.0])
 
 

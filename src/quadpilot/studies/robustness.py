@@ -44,6 +44,7 @@ from quadpilot.core.observation import build_observation
 from quadpilot.core.params import VehicleParams
 from quadpilot.core.randomization import RandomizationConfig
 from quadpilot.core.reward import crashed, hover_reward
+from quadpilot.core.state import POS, YAW
 from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG
 from quadpilot.train.envs import EnvConfig, QuadBatch
 
@@ -148,7 +149,7 @@ def fly(
     batch.reset(np.ones(n, bool), np.random.default_rng(seed))
     if starts is not None:
         batch.state[:] = np.asarray(starts, batch.dtype).reshape(n, dynamics.STATE_DIM)
-        batch.heading[:] = wrap_angle(batch.state[:, 8])  # the given starts hold their own heading
+        batch.heading[:] = wrap_angle(batch.state[:, YAW])  # the given starts hold their own heading
         build_observation(batch.state, batch.target, None, out=batch.obs, heading=batch.obs_heading)
     controller.reset(n)
     T = cfg.episode_steps if steps is None else steps
@@ -176,7 +177,7 @@ def fly(
         )
         batch.steps += 1
         build_observation(batch.state, batch.target, None, out=batch.obs, heading=batch.obs_heading)
-        pos_err = batch.state[:, 0:3] - batch.target
+        pos_err = batch.state[:, POS] - batch.target
         crash = crashed(batch.state, pos_err, cfg.reward)
         paid = yaw_errors(batch.state, batch.heading)[1] if batch.obs_heading is not None else None
         ep_return += np.where(alive, hover_reward(batch.state, pos_err, crash, cfg.reward, paid), 0.0)
@@ -204,7 +205,7 @@ def summarise(flight: Flight, cfg: EnvConfig) -> dict:
     """The hover keys of `evaluate`'s result for a flight."""
     alive = flight.alive
     window = flight.states[-min(len(flight.states) - 1, cfg.success_steps) :]
-    heading = flight.states[0, :, 8] if flight.heading is None else flight.heading
+    heading = flight.states[0, :, YAW] if flight.heading is None else flight.heading
     rate, head = yaw_errors(window, heading)
     success = window_success(alive, flight.mean_err, rate.mean(axis=0), head.mean(axis=0), cfg.success_tolerance)
     nan = float("nan")
@@ -364,11 +365,11 @@ def run_scenario(controller, sc: Scenario, cfg: EnvConfig, n: int = 20, seed: in
     with the same seed). Returns per-drone and summary metrics (see `scenario_metrics`)."""
     rng = np.random.default_rng(seed)
     starts = np.zeros((n, dynamics.STATE_DIM))
-    starts[:, 0:3] = cfg.home
-    starts[:, dynamics.IDX["yaw"]] = rng.uniform(-np.pi, np.pi, n)
+    starts[:, POS] = cfg.home
+    starts[:, YAW] = rng.uniform(-np.pi, np.pi, n)
     d = sc.direction
     if sc.kind == "offset":
-        starts[:, 0:3] += sc.magnitude * d
+        starts[:, POS] += sc.magnitude * d
     plant = RandomizationConfig.fixed(drag=sc.drag, name="nominal" if sc.drag is None else "nominal with drag")
     c = dataclasses.replace(cfg, randomization=plant, episode_steps=round(sc.seconds / cfg.dt))
     k0 = round(sc.onset_s / cfg.dt)
@@ -406,7 +407,7 @@ def scenario_metrics(flight: Flight, target: np.ndarray, direction: np.ndarray, 
     second); overshoot, how far past the target the vehicle goes along `direction` after its peak
     excursion; steady error, the mean error over the last 2 s. Means over the drones (settling:
     mean over those that settled, and the worst), crashes counted."""
-    p = flight.states[k0:, :, 0:3] - target  # (T', N, 3)
+    p = flight.states[k0:, :, POS] - target  # (T', N, 3)
     err = np.linalg.norm(p, axis=2)
     along = p @ direction
     n = err.shape[1]

@@ -45,6 +45,7 @@ from quadpilot.core.randomization import preset as randomization_preset
 from quadpilot.core.reward import RewardConfig, circle_errors, circle_reward, crashed, hover_reward
 from quadpilot.core.sensor_noise import SensorNoise, SensorNoiseState, get_sensor_noise
 from quadpilot.core.start import sample_ball, sample_start_states
+from quadpilot.core.state import POS, YAW
 
 INIT_ROTOR = ("hover", "rest", "random")
 """`EnvConfig.init_rotor` values."""
@@ -275,7 +276,7 @@ class QuadBatch:
         # the commanded heading, drawn next to the start state (before any plant draw, so that a
         # randomised and a plain batch from one seed start alike)
         offset = rng.uniform(-1.0, 1.0, k) * np.radians(c.heading_offset_deg) if c.heading_offset_deg else 0.0
-        self.heading[idx] = wrap_angle(self.state[idx, 8] + offset)
+        self.heading[idx] = wrap_angle(self.state[idx, YAW] + offset)
         if self.randomizer is not None:  # a new ParamBatch (dynamics re-derives its constants)
             self.params = self.randomizer.resample(self.params, idx, rng, c.episode_steps)
         if c.init_rotor == "hover":
@@ -321,7 +322,7 @@ class QuadBatch:
         build_observation(
             self.sensed(), self.target, self.target_vel if circle else None, out=self.obs, heading=self.obs_heading
         )
-        pos_err = self.state[:, 0:3] - self.target  # world frame, m
+        pos_err = self.state[:, POS] - self.target  # world frame, m
         crash = crashed(self.state, pos_err, c.reward)
         rate, head = yaw_errors(self.state, self.heading)
         paid = head if c.obs_version == 2 else None  # version 1: no heading term in the reward

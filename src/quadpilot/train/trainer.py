@@ -39,6 +39,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from quadpilot.core.state import YAW
+
 from .checks import (
     BIT_GENERATORS,
     SCHEMA,
@@ -273,7 +275,7 @@ class Trainer:
                 for name in HEADING_ARRAYS:
                     setattr(batch, name, env[name].numpy().astype(getattr(batch, name).dtype, copy=True))
             else:
-                batch.heading[:] = batch.state[:, 8]
+                batch.heading[:] = batch.state[:, YAW]
             batch.target_radius = float(env["target_radius"])
             self.env._started = bool(env["started"])
             _load_randomization_state(batch, env, source)

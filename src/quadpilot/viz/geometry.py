@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 
-from quadpilot.core.dynamics import ATT, POS, STATE_DIM
 from quadpilot.core.frames import euler_to_rotmat
 from quadpilot.core.params import QUAD_X_UNIT, SEED_VEHICLE, get_preset
+from quadpilot.core.state import ATT, PITCH, POS, ROLL, STATE_DIM, YAW
 
 
 def _rotors_unit(layout) -> np.ndarray:
@@ -56,7 +56,7 @@ def rotor_discs(state: np.ndarray, arm_length: float, radius: float, n: int = 16
     s = np.asarray(state, dtype=np.float64)
     if s.shape != (STATE_DIM,):
         raise ValueError(f"rotor_discs: state must have shape (12,), got {s.shape}")
-    rot = euler_to_rotmat(s[6], s[7], s[8])
+    rot = euler_to_rotmat(s[ROLL], s[PITCH], s[YAW])
     a = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
     circle = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1) * radius  # (n, 3) body
     unit = _ROTORS_UNIT if layout is None else _rotors_unit(layout)
