@@ -8,9 +8,9 @@ Checked on the vehicle's side (its --tlog: the simulator's HIL_STATE_QUATERNION,
 its --json summary): it left the ground, ended landed and disarmed, within 15 cm of the point it
 took off from (where take-off and land sent it: straight up, then down where it is).
 
-No upstream example flies to points with the 4.x API: MAVSDK-Python's examples (goto.py, mission.py)
-are written for the gRPC API of mavsdk < 4 (`from mavsdk import System`, which 4.x refuses), and
-MAVSDK's 4.x `mission.py` uploads gimbal and camera items this vehicle refuses."""
+MAVSDK-Python's own examples (goto.py, mission.py) are written for the gRPC API of mavsdk < 4 (`from
+mavsdk import System`, which 4.x refuses); MAVSDK's 4.x `mission.py`, which flies six waypoints and
+returns home, runs unchanged in tests/sitl/test_outsider_mission.py."""
 
 from __future__ import annotations
 

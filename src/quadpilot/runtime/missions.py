@@ -20,7 +20,9 @@ mission_type). MISSION_ITEM (the float form, deprecated) is answered UNSUPPORTED
 Items: NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND (positions, frames 0 GLOBAL and 5 GLOBAL_INT with altitude
 above mean sea level, 3 GLOBAL_RELATIVE_ALT, which MAVSDK 4.1.0 sends, and 6 GLOBAL_RELATIVE_ALT_INT,
 which newer MAVSDK sends, with altitude above home), NAV_RETURN_TO_LAUNCH, NAV_DELAY and
-DO_CHANGE_SPEED (MAVSDK adds the last two for a mission item's loiter time and speed).
+DO_CHANGE_SPEED (MAVSDK adds the last two for a mission item's loiter time and speed), and the
+camera and gimbal items of `PAYLOAD_COMMANDS`, which this vehicle has neither of: stored, flown as
+done at once, moving nothing.
 """
 
 from __future__ import annotations
@@ -40,7 +42,37 @@ NAV_RETURN_TO_LAUNCH = mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH
 NAV_DELAY = mavlink2.MAV_CMD_NAV_DELAY
 DO_CHANGE_SPEED = mavlink2.MAV_CMD_DO_CHANGE_SPEED
 POSITION_COMMANDS = frozenset({NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND})
-SUPPORTED_COMMANDS = POSITION_COMMANDS | {NAV_RETURN_TO_LAUNCH, NAV_DELAY, DO_CHANGE_SPEED}
+PAYLOAD_COMMANDS = frozenset(
+    {
+        mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+        mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE,
+        mavlink2.MAV_CMD_DO_MOUNT_CONFIGURE,
+        mavlink2.MAV_CMD_DO_MOUNT_CONTROL,
+        mavlink2.MAV_CMD_IMAGE_START_CAPTURE,
+        mavlink2.MAV_CMD_IMAGE_STOP_CAPTURE,
+        mavlink2.MAV_CMD_VIDEO_START_CAPTURE,
+        mavlink2.MAV_CMD_VIDEO_STOP_CAPTURE,
+        mavlink2.MAV_CMD_DO_CONTROL_VIDEO,
+        mavlink2.MAV_CMD_DO_TRIGGER_CONTROL,
+        mavlink2.MAV_CMD_DO_DIGICAM_CONTROL,
+        mavlink2.MAV_CMD_DO_SET_CAM_TRIGG_DIST,
+        mavlink2.MAV_CMD_DO_SET_CAM_TRIGG_INTERVAL,
+        mavlink2.MAV_CMD_SET_CAMERA_MODE,
+        mavlink2.MAV_CMD_SET_CAMERA_ZOOM,
+        mavlink2.MAV_CMD_SET_CAMERA_FOCUS,
+    }
+)
+"""Gimbal, mount and camera items: no motion, and nothing on this vehicle to act on them. PX4 accepts
+each in an upload (src/modules/mavlink/mavlink_mission.cpp, parse_mavlink_mission_item: copied as
+they are) and counts it reached as soon as it is current (src/modules/navigator/mission_block.cpp,
+MissionBlock::is_mission_item_reached_or_completed: "return true" for these commands), whereupon
+MissionBase::on_active (mission_base.cpp) reports it reached and moves on to the next item; the
+command it issues finds no gimbal or camera on a vehicle without one. So here: stored, reported
+current and reached in their order, and not flown. MAVSDK's Mission plugin uploads them for a
+MissionItem's gimbal angles and camera action (cpp/src/mavsdk/plugins/mission/mission_impl.cpp,
+convert_to_int_items). Items that would move or turn the vehicle (DO_SET_ROI*, DO_JUMP, loiters,
+DO_VTOL_TRANSITION...) stay refused."""
+SUPPORTED_COMMANDS = POSITION_COMMANDS | PAYLOAD_COMMANDS | {NAV_RETURN_TO_LAUNCH, NAV_DELAY, DO_CHANGE_SPEED}
 AMSL_FRAMES = frozenset({mavlink2.MAV_FRAME_GLOBAL, mavlink2.MAV_FRAME_GLOBAL_INT})
 RELATIVE_FRAMES = frozenset({mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT})
 GLOBAL_FRAMES = AMSL_FRAMES | RELATIVE_FRAMES

@@ -37,7 +37,8 @@ vehicle once the vehicle stops on the ground."""
 class Leg:
     """One piece of a flight task. kind: "move", "takeoff" (as move, climbing at MPC_TKO_SPEED),
     "land" (x, y of `goal` only), "wait" (`seconds`, hold the reference; < 0: for ever), "speed"
-    (DO_CHANGE_SPEED `speed` = (type, m/s), instantaneous). `tag` is returned when the leg is done."""
+    (DO_CHANGE_SPEED `speed` = (type, m/s), instantaneous), "none" (an item with nothing to fly,
+    done at once). `tag` is returned when the leg is done."""
 
     kind: str
     goal: np.ndarray | None = None
@@ -158,8 +159,9 @@ class Navigator:
         pos = np.asarray(pos, np.float64)
         done = []
         while self.leg is not None and not self.frozen:
-            if self.leg.kind == "speed":
-                self.apply_speed(*self.leg.speed)
+            if self.leg.kind in ("speed", "none"):
+                if self.leg.kind == "speed":
+                    self.apply_speed(*self.leg.speed)
                 done.append(self.leg.tag)
                 self._next()
                 continue
@@ -243,6 +245,8 @@ def item_legs(item: missions.MissionItem, ref, home: Home, params) -> list[Leg]:
         return [Leg("wait", seconds=float(item.param1), tag=tag)]
     if cmd == missions.DO_CHANGE_SPEED:
         return [Leg("speed", speed=(item.param1, item.param2), tag=tag)]
+    if cmd in missions.PAYLOAD_COMMANDS:  # no gimbal or camera here: reached at once (missions.PAYLOAD_COMMANDS)
+        return [Leg("none", tag=tag)]
     raise ValueError(f"mission item {item.seq}: command {cmd} has no legs")
 
 

@@ -26,6 +26,7 @@ import argparse
 import ast
 import inspect
 import itertools
+import math
 import sys
 import textwrap
 
@@ -33,6 +34,7 @@ from quadpilot.console import Parser, UsageError
 
 from .options import (
     PPO_NETWORK_OPTIONS,
+    PPO_UPDATE_OPTIONS,
     SIZE_OPTIONS,
     check_heading_offset,
     check_motor_tau,
@@ -84,6 +86,20 @@ def int_at_least(lo: int, hi: int = 2**62):
     return parse
 
 
+def positive_float(s: str) -> float:
+    """An argparse type: a finite number > 0."""
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {s!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {s}")
+    return v
+
+
+positive_float.__name__ = "number > 0"
+
+
 def build_parser() -> argparse.ArgumentParser:
     from quadpilot.core.vehicle_file import shipped_names
 
@@ -111,6 +127,25 @@ def build_parser() -> argparse.ArgumentParser:
             metavar=metavar,
             help=f"{doc} Default: the preset's, else {getattr(defaults, name)}.",
         )
+    p.add_argument(
+        "--epochs",
+        type=int_at_least(1, 1000),
+        metavar="K",
+        help=f"PPO (ppo, sb3): passes over each rollout per update. Default: the preset's, else {defaults.epochs}.",
+    )
+    p.add_argument(
+        "--lr",
+        type=positive_float,
+        metavar="LR",
+        help=f"PPO (ppo, sb3): Adam's learning rate (at the start, if annealed). Default: the preset's, else "
+        f"{defaults.lr:g}.",
+    )
+    p.add_argument(
+        "--lr-schedule",
+        choices=("constant", "linear"),
+        help="PPO (ppo, sb3): constant, or linear (annealed to 0 over --total-steps). Default: the preset's, else "
+        f"{defaults.lr_schedule}.",
+    )
     p.add_argument(
         "--algo",
         choices=ALGOS,
@@ -273,6 +308,9 @@ def main(argv: list[str] | None = None) -> int:
         given = [f"--{k.replace('_', '-')}" for k in PPO_NETWORK_OPTIONS if getattr(args, k) is not None]
         if args.algo != "ppo" and given:
             raise UsageError(f"{', '.join(given)}: options of our PPO (--algo ppo), not of --algo {args.algo}")
+        given = [f"--{k.replace('_', '-')}" for k in PPO_UPDATE_OPTIONS if getattr(args, k) is not None]
+        if args.algo == "sac" and given:
+            raise UsageError(f"{', '.join(given)}: PPO's update settings, not SAC's (use --set NAME=VALUE)")
         if args.algo == "sac" and args.preset:
             raise UsageError(
                 "--preset chooses a PPO recipe; --algo sac takes SACConfig's defaults and --set NAME=VALUE"

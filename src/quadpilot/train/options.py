@@ -26,6 +26,8 @@ SIZE_OPTIONS = {
 }
 PPO_NETWORK_OPTIONS = ("arch", "obs_history", "bptt_steps")
 """Options of our PPO's network: refused for the other algorithms."""
+PPO_UPDATE_OPTIONS = ("epochs", "lr", "lr_schedule")
+"""Options of PPO's update (ours and the SB3 baseline's): refused for SAC."""
 RESUME_MAY_CHANGE = ("total_steps", "threads")
 """Options a resumed run may change; everything else must match the checkpoint."""
 
@@ -85,6 +87,9 @@ def explicit_options(args, algo) -> dict[str, Any]:
     explicit = {k: getattr(args, k) for k in SIZE_OPTIONS if getattr(args, k) is not None}
     if getattr(args, "arch", None):
         explicit["arch"] = args.arch
+    for k in PPO_UPDATE_OPTIONS:
+        if getattr(args, k, None) is not None:
+            explicit[k] = getattr(args, k)
     explicit.update(parse_overrides(getattr(args, "set", None), algo.Config, algo.algo))
     return explicit
 

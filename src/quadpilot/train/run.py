@@ -429,6 +429,7 @@ def train(args, argv: list[str]) -> int:
         )
         return 130
     save_checkpoint(out / POLICY, agent, extra(last))
+    print(time_line(time_breakdown(out / "metrics.csv", algo.columns), eval_s), flush=True)
     done = "done" + (f" ({algo.tag})" if algo.tag else "")
     steps = f"{agent.global_step:,} steps in {agent.updates} {algo.unit}s"
     summary = f"quad-train: {done}, {steps}; policy in {out / POLICY}"
@@ -450,6 +451,20 @@ def train(args, argv: list[str]) -> int:
         summary += final_evaluation(agent, args, cur, out, meta)
     print(summary, flush=True)
     return 0
+
+
+def time_line(breakdown: dict, eval_s: float) -> str:
+    """Where the training time went, one line: the rollout (environment and policy inference), the
+    update, and this session's periodic evaluations (not counted as training time)."""
+    names = {"env_s": "environment", "inference_s": "policy inference", "update_s": "update"}
+    fractions = breakdown.get("fractions", {})
+    parts = []
+    for k, v in breakdown.items():
+        if k.endswith("_s") and isinstance(v, (int, float)):
+            f = fractions.get(k)
+            share = f" ({f:.0%})" if isinstance(f, float) else ""
+            parts.append(f"{names.get(k, k.removesuffix('_s'))} {v:.1f} s{share}")
+    return f"quad-train: time: {', '.join(parts) or 'not recorded'}; periodic evaluation {eval_s:.1f} s"
 
 
 def evaluate_and_advance(agent, args, cur, m: dict, first_success: dict | None) -> tuple[dict | None, float]:
