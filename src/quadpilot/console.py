@@ -14,6 +14,7 @@ Imports nothing of ours and nothing heavy: the runtime and the simulator use it 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import tempfile
@@ -55,6 +56,20 @@ def int_in(lo: int, hi: int):
 
     parse.__name__ = "integer"
     return parse
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0, else a one-line error."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return v
+
+
+positive_float.__name__ = "number > 0"
 
 
 def check_output_path(path: Path, flag: str, *, directory: bool = False) -> None:

@@ -28,8 +28,8 @@ def test_the_update_settings_reach_the_configuration_and_the_time_split_is_print
     ("flags", "says"),
     [
         (["--algo", "sac", "--epochs", "3"], "--epochs: PPO's update settings, not SAC's"),
-        (["--lr", "0"], "--lr: must be a finite number > 0"),
-        (["--lr", "nan"], "--lr: must be a finite number > 0"),
+        (["--lr", "0"], "--lr: expected a finite number > 0"),
+        (["--lr", "nan"], "--lr: expected a finite number > 0"),
         (["--epochs", "0"], "--epochs: must be ≥ 1"),
         (["--lr-schedule", "cosine"], "--lr-schedule: invalid choice"),
     ],

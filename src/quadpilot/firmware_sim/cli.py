@@ -11,6 +11,7 @@ import math
 import sys
 
 from quadpilot.console import Parser, UsageError
+from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
 from quadpilot.core.params import PRESETS
 from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError, is_vehicle_path, resolve_vehicle
@@ -39,16 +40,6 @@ def _wind(text: str) -> tuple[float, float, float]:
             f"expected three comma-separated numbers (m/s east,north,up), e.g. 2,0,0; got {text!r}"
         )
     return values  # type: ignore[return-value]
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
-    return v
 
 
 def _non_negative(text: str) -> float:
@@ -154,7 +145,10 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         help="s, motors cut after this long without a valid command",
     )
     p.add_argument(
-        "--lockstep-timeout", type=_positive, default=d.lockstep_timeout_s, help="s, an episode ends after this silence"
+        "--lockstep-timeout",
+        type=_positive,
+        default=d.lockstep_timeout_s,
+        help="s, an episode ends after this silence",
     )
     p.add_argument("--max-steps", type=_int_at_least(1), default=d.max_steps, help="step bound of one episode")
     p.add_argument("--json", metavar="OUT", default=None, help="write the stats and episode records as JSON on exit")

@@ -26,11 +26,10 @@ import argparse
 import ast
 import inspect
 import itertools
-import math
 import sys
 import textwrap
 
-from quadpilot.console import Parser, UsageError
+from quadpilot.console import Parser, UsageError, positive_float
 
 from .options import (
     PPO_NETWORK_OPTIONS,
@@ -84,20 +83,6 @@ def int_at_least(lo: int, hi: int = 2**62):
 
     parse.__name__ = f"integer ≥ {lo}"
     return parse
-
-
-def positive_float(s: str) -> float:
-    """An argparse type: a finite number > 0."""
-    try:
-        v = float(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {s!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {s}")
-    return v
-
-
-positive_float.__name__ = "number > 0"
 
 
 def build_parser() -> argparse.ArgumentParser:
