@@ -34,7 +34,6 @@ import datetime as _dt
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -60,7 +59,7 @@ SIM_SYSTEM, VEHICLE_SYSTEM = 200, 1  # our simulator's MAVLink system id, the no
 
 def run(out: Path) -> int:
     sys.path.insert(0, str(ROOT / "tests" / "sitl"))  # the commanded-flight test and its kit
-    from mavsdk_gcs import free_udp_port, policy_copy, stop_vehicle
+    from mavsdk_gcs import free_udp_port, policy_copy, start_vehicle, stop_vehicle
     from test_commanded_flight import GOTO, TAKEOFF, WAYPOINTS, commanded_flight
 
     load_before = os.getloadavg()[0]
@@ -68,7 +67,7 @@ def run(out: Path) -> int:
         tmp = Path(tmp)
         port = free_udp_port()
         start = time.monotonic()
-        proc = start_vehicle(policy_copy(tmp), port, tmp / "summary.json", tmp / "flight.tlog")
+        proc = start_vehicle(policy_copy(tmp), port, tmp / "summary.json", tlog=tmp / "flight.tlog")
         try:
             seen = asyncio.run(asyncio.wait_for(commanded_flight(port), 80))
         finally:
@@ -114,13 +113,6 @@ def run(out: Path) -> int:
     write_trace(rows, trace_path(out))
     print(f"wrote {out} and {trace_path(out)} ({wall:.0f} s)")
     return 0
-
-
-def start_vehicle(policy: Path, port: int, json_out: Path, tlog: Path) -> subprocess.Popen:
-    """tests/sitl/mavsdk_gcs.py's `start_vehicle` (the same quad-sitl command) with `--tlog`."""
-    cmd = [sys.executable, "-m", "quadpilot.sitl", str(policy), "--realtime", "--start", "landed"]
-    cmd += ["--duration", "90", "--gcs", f"udp:127.0.0.1:{port}", "--json", str(json_out), "--tlog", str(tlog)]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def trace_path(json_path: Path) -> Path:

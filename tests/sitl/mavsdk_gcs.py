@@ -34,11 +34,24 @@ def policy_copy(tmp: Path) -> Path:
     return tmp / "hover" / SHIPPED_HOVER.name
 
 
-def start_vehicle(policy: Path, port: int, json_out: Path, duration_s: float = 90.0) -> subprocess.Popen:
-    """`quad-sitl POLICY --realtime --start landed --gcs udp:127.0.0.1:PORT` as a subprocess."""
+def start_vehicle(
+    policy: Path, port: int, json_out: Path, duration_s: float = 90.0, tlog: Path | None = None
+) -> subprocess.Popen:
+    """`quad-sitl POLICY --realtime --start landed --gcs udp:127.0.0.1:PORT` as a subprocess, with
+    `--tlog TLOG` (every message the node sent and received) if given."""
     cmd = [sys.executable, "-m", "quadpilot.sitl", str(policy), "--realtime", "--start", "landed"]
-    cmd += ["--duration", str(duration_s), "--gcs", f"udp:127.0.0.1:{port}", "--json", str(json_out)]
+    cmd += ["--duration", f"{duration_s:g}", "--gcs", f"udp:127.0.0.1:{port}", "--json", str(json_out)]
+    if tlog is not None:
+        cmd += ["--tlog", str(tlog)]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def upstream_part(path: Path) -> bytes:
+    """A vendored upstream file (tests/sitl/outsider/) without the header we put above it: the bytes
+    whose SHA-256 must equal the upstream file's."""
+    text = path.read_bytes()
+    marker = b"# ---- end of header ----\n"
+    return text[text.index(marker) + len(marker) :]
 
 
 def stop_vehicle(proc: subprocess.Popen, timeout: float = 20.0) -> tuple[int, str, str]:

@@ -3,6 +3,7 @@ pymavlink ground station on the other side of its UDP socket: a lockstep flight 
 commander on simulated time), motors off while disarmed or idle, and the node's own failsafe on
 simulator link loss reported to the ground station as PX4 would."""
 
+import contextlib
 import math
 import socket
 import struct
@@ -78,9 +79,12 @@ def vehicle_heartbeats(msgs) -> list:
     return [m for m in msgs if m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1]
 
 
-def start_landed_flight(gcs: Gcs, duration_s: float):
+@contextlib.contextmanager
+def landed_flight(duration_s: float):
     """Our simulator (landed start) and a commanded node flying the shipped hover policy, each in a
-    thread: (simulator, its thread, the node's thread, the dict that gets the node's log)."""
+    thread, and a ground station: yields (ground station, simulator, the node's thread, the dict
+    that gets the node's log); on the way out stops the simulator and closes the ground station."""
+    gcs = Gcs()
     sim = Simulator(SimConfig(listen="tcp:127.0.0.1:0", episodes=1, start="landed"))
     port = sim.bind().port
     sim_thread = threading.Thread(target=sim.serve, daemon=True)
@@ -95,7 +99,13 @@ def start_landed_flight(gcs: Gcs, duration_s: float):
     result: dict = {}
     node = threading.Thread(target=lambda: result.update(log=Node(cfg).fly(SafetyMonitor(load_policy(SHIPPED_HOVER)))))
     node.start()
-    return sim, sim_thread, node, result
+    try:
+        yield gcs, sim, node, result
+    finally:
+        sim.stop()
+        sim_thread.join(5)
+        node.join(5)
+        gcs.close()
 
 
 def take_off(gcs: Gcs) -> None:
@@ -109,9 +119,7 @@ def take_off(gcs: Gcs) -> None:
 
 
 def test_a_lockstep_flight_from_the_ground_takes_off_lands_and_disarms_with_motors_off_on_the_ground():
-    gcs = Gcs()
-    sim, sim_thread, node, result = start_landed_flight(gcs, 120.0)
-    try:
+    with landed_flight(120.0) as (gcs, sim, node, result):
         take_off(gcs)
         gcs.until(lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.relative_alt > 2400, 30, "2.4 m")
         gcs.until(
@@ -132,11 +140,6 @@ def test_a_lockstep_flight_from_the_ground_takes_off_lands_and_disarms_with_moto
         node.join(30)
         while gcs.recv(0.1) is not None:
             pass
-    finally:
-        sim.stop()
-        sim_thread.join(5)
-        node.join(5)
-        gcs.close()
     log = result["log"]
     t, z = np.asarray(log.t), np.asarray(log.states)[:, 2]
     cmds, sources = np.asarray(log.commands), np.asarray(log.sources)
@@ -196,9 +199,7 @@ def test_a_goto_with_a_yaw_turns_the_vehicle_to_that_heading_and_holds_it(headin
     vehicle that took off facing east (the landed start's heading) by 90° or 180°: more than the
     policy was trained to turn at once (30°), so the node gives it a heading at most 25° ahead and it
     turns steadily; it ends facing the new heading, holding still, where it was."""
-    gcs = Gcs()
-    sim, sim_thread, node, result = start_landed_flight(gcs, 40.0)
-    try:
+    with landed_flight(40.0) as (gcs, _sim, node, result):
         take_off(gcs)
         gcs.until(
             lambda m: m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1 and m.custom_mode == 3 << 24 | 4 << 16,
@@ -215,11 +216,6 @@ def test_a_goto_with_a_yaw_turns_the_vehicle_to_that_heading_and_holds_it(headin
         )
         assert ack.result == M.MAV_RESULT_ACCEPTED
         node.join(60)
-    finally:
-        sim.stop()
-        sim_thread.join(5)
-        node.join(5)
-        gcs.close()
     log = result["log"]
     t, s = np.asarray(log.t), np.asarray(log.states)
     assert log.failsafe is None and set(np.asarray(log.sources)) <= {"policy", "idle"}

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mavsdk_gcs import HOME, free_udp_port, policy_copy, stop_vehicle
+from mavsdk_gcs import HOME, free_udp_port, policy_copy, start_vehicle, stop_vehicle
 from pymavlink import mavutil
 
 from quadpilot.link.frames import geodetic_to_local
@@ -99,12 +99,6 @@ class Console:
         return "\n".join(self.lines)
 
 
-def start_vehicle(policy: Path, port: int, json_out: Path, tlog: Path) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "quadpilot.sitl", str(policy), "--realtime", "--start", "landed"]
-    cmd += ["--duration", "60", "--gcs", f"udp:127.0.0.1:{port}", "--json", str(json_out), "--tlog", str(tlog)]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
 def read_tlog(path: Path) -> list:
     log = mavutil.mavlink_connection(str(path))
     got = []
@@ -120,7 +114,7 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
         pytest.fail('MAVProxy not found: the dev extra installs it (pip install -e ".[dev]"), or set $MAVPROXY')
     port = free_udp_port()
     out, tlog = tmp_path / "summary.json", tmp_path / "flight.tlog"
-    proc = start_vehicle(policy_copy(tmp_path), port, out, tlog)
+    proc = start_vehicle(policy_copy(tmp_path), port, out, duration_s=60, tlog=tlog)
     console = Console(exe, port, tmp_path)
     t0 = time.monotonic()
     seen = {}

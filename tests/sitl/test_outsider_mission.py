@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mavsdk_gcs import HOME, free_udp_port, policy_copy, stop_vehicle
+from mavsdk_gcs import HOME, free_udp_port, policy_copy, start_vehicle, stop_vehicle, upstream_part
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
@@ -38,12 +38,6 @@ SCRIPT = Path(__file__).parent / "outsider" / "mission.py"
 UPSTREAM_SHA256 = "bbbc01b006ebc0381d007a705a0190dc93164cb9b0592e1871c60124f6bc4af2"  # the file at that commit
 NEAR_M = 0.15
 ACCEPTANCE_M = 1.0  # the script's MissionItem.acceptance_radius_m
-
-
-def upstream_part(path: Path) -> bytes:
-    text = path.read_bytes()
-    marker = b"# ---- end of header ----\n"
-    return text[text.index(marker) + len(marker) :]
 
 
 def test_the_vendored_mission_script_is_upstreams_unchanged():
@@ -71,9 +65,7 @@ def read_tlog(path: Path):
 def test_mavsdks_own_mission_example_flies_the_vehicle_unchanged(tmp_path):
     port = free_udp_port()
     out, tlog = tmp_path / "summary.json", tmp_path / "flight.tlog"
-    cmd = [sys.executable, "-m", "quadpilot.sitl", str(policy_copy(tmp_path)), "--realtime", "--start", "landed"]
-    cmd += ["--duration", "480", "--gcs", f"udp:127.0.0.1:{port}", "--json", str(out), "--tlog", str(tlog)]
-    vehicle = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    vehicle = start_vehicle(policy_copy(tmp_path), port, out, duration_s=480, tlog=tlog)
     t0 = time.monotonic()
     try:
         script = subprocess.run(
