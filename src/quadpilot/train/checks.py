@@ -31,6 +31,12 @@ class CheckpointError(Exception):
 # --- plain data -----------------------------------------------------------------------------
 
 
+# QuadBatch arrays that hold the commanded heading of the episodes in flight (`core.mission`'s yaw
+# rule), saved with the other episode arrays; absent from checkpoints written before the rule,
+# whose episodes in flight then hold the heading they have at the resume.
+HEADING_ARRAYS = ("heading", "yaw_rate_sum", "heading_err_sum")
+
+
 def tensor(a: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.array(a, copy=True))
 
@@ -379,9 +385,8 @@ def check_fits(agent: Any, reference: dict, ckpt: dict, source: str, optimizers:
             tr_ref.pop("extra_state", None)  # files written before it existed: nothing extra to restore
         check_like(tr_ref, ckpt["trainer"], "trainer")
         env_ref = dict(reference["env"])
-        held = ("heading", "yaw_rate_sum", "heading_err_sum")  # trainer.HEADING_ARRAYS
-        if isinstance(ckpt["env"], dict) and not any(k in ckpt["env"] for k in held):
-            for k in held:  # files written before the yaw rule: the heading is the one at the resume
+        if isinstance(ckpt["env"], dict) and not any(k in ckpt["env"] for k in HEADING_ARRAYS):
+            for k in HEADING_ARRAYS:  # files written before the yaw rule: the heading is the one at the resume
                 env_ref.pop(k, None)
         check_like(env_ref, ckpt["env"], "env")
         check_like(reference["rng"], ckpt["rng"], "rng")

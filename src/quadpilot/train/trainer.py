@@ -43,6 +43,7 @@ from quadpilot.core.state import YAW
 
 from .checks import (
     BIT_GENERATORS,
+    HEADING_ARRAYS,
     SCHEMA,
     CheckpointError,
     check_fits,
@@ -58,9 +59,6 @@ PREVIOUS = "checkpoint.prev.pt"
 # QuadBatch arrays that hold an episode in flight; restoring them lets a resumed run continue the
 # very episodes the checkpoint interrupted instead of resetting every drone.
 ENV_ARRAYS = ("state", "rotor", "target", "target_vel", "phase", "steps", "ep_return", "err_sum", "obs")
-# the held heading of those episodes (`core.mission`'s yaw rule); absent from checkpoints written
-# before it, whose episodes in flight then hold the heading they have at the resume
-HEADING_ARRAYS = ("heading", "yaw_rate_sum", "heading_err_sum")
 
 
 class NonFiniteError(RuntimeError):
