@@ -241,6 +241,11 @@ def malformed_policies(base: dict, marker: Path) -> dict[str, bytes]:
         "a torch zip without a tensor's storage": _zip_without(good, "/data/0"),
         "a plain pickle that runs a command": evil_pickle,
         "a torch zip whose pickle runs a command": _zip_with_data_pkl(good, evil_pickle),
+        # protocol 4 makes torch warn on stderr before it refuses: still one line from us
+        "a protocol-4 pickle that runs a command": pickle.dumps(_Evil(marker), protocol=4),
+        "a torch zip whose protocol-4 pickle runs a command": _zip_with_data_pkl(
+            good, pickle.dumps(_Evil(marker), protocol=4)
+        ),
         "a JSON file": json.dumps({"schema": "quadpilot.checkpoint/1"}).encode(),
         "an ONNX file": (ROOT / "models" / "hover" / "policy.onnx").read_bytes(),
         "a list": _torch_bytes([1, 2, 3]),
@@ -603,9 +608,14 @@ def test_quad_export_refuses_each_malformed_checkpoint_in_one_line(driven):
 
 
 def test_a_checkpoint_never_runs_the_code_it_holds(driven):
-    """Two files whose pickle calls os.system were refused (above) and the command never ran."""
+    """Four files whose pickle calls os.system were refused (above) and the command never ran."""
     groups, marker = driven
-    assert {"a plain pickle that runs a command", "a torch zip whose pickle runs a command"} <= {
+    assert {
+        "a plain pickle that runs a command",
+        "a torch zip whose pickle runs a command",
+        "a protocol-4 pickle that runs a command",
+        "a torch zip whose protocol-4 pickle runs a command",
+    } <= {
         c.name for c in groups["policy"]
     }
     assert not marker.exists()

@@ -44,6 +44,7 @@ from .checks import (
     check_sizes,
     check_trainer,
     check_weights,
+    load_weights_only,
     one_line,
     plain,
     rms_state,
@@ -231,12 +232,9 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     if size > MAX_FILE_BYTES:
         raise CheckpointError(f"{path}: {size:,} bytes; a checkpoint is at most {MAX_FILE_BYTES:,}")
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises many types for a bad zip, a bad pickle, a short read
-        reason = " ".join(str(e).split())[:200]
-        raise CheckpointError(
-            f"{path}: unreadable ({type(e).__name__}: {reason}); the file is truncated or corrupt, or not {expected}"
-        ) from None
+        ckpt = load_weights_only(path)
+    except CheckpointError as e:
+        raise CheckpointError(f"{e}; expected {expected}") from None
     if not isinstance(ckpt, dict) or "schema" not in ckpt:
         raise CheckpointError(f"{path}: holds a {type(ckpt).__name__} without a 'schema' key; expected {expected}")
     if not isinstance(ckpt["schema"], str) or ckpt["schema"] != SCHEMA:

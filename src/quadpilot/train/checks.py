@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
 import types
 import typing
+import warnings
 from typing import Any
 
 import numpy as np
@@ -26,6 +28,29 @@ BIT_GENERATORS = ("PCG64", "PCG64DXSM", "Philox", "SFC64", "MT19937")
 
 class CheckpointError(Exception):
     """A checkpoint file is missing, unreadable, truncated, or not one this version understands."""
+
+
+def load_weights_only(path) -> Any:
+    """`torch.load(path, weights_only=True)`: tensors and plain data only, so no code in the file
+    runs. Whatever goes wrong becomes one CheckpointError reason: torch's own messages span lines,
+    its warnings about the pickle protocol go to stderr, and when it meets a pickled object it
+    advises loading with weights_only=False, which is the one thing never to do with a file from
+    elsewhere."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        text = " ".join(str(e).split())
+        if "weights only load failed" in text.lower():  # keep torch's finding, drop its boilerplate
+            detail = text.partition("trusted source.")[2].partition("Please file an issue")[0].strip()
+            raise CheckpointError(
+                f"{path}: unreadable: not tensors and plain data, refused by torch's weights-only reader, "
+                f"nothing in it was run{f' ({detail[:150]})' if detail else ''}"
+            ) from None
+        raise CheckpointError(f"{path}: unreadable (UnpicklingError: {text[:200]})") from None
+    except Exception as e:  # torch raises many types for a bad zip, a short read, a bad record
+        raise CheckpointError(f"{path}: unreadable ({type(e).__name__}: {' '.join(str(e).split())[:200]})") from None
 
 
 # --- plain data -----------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .checks import CheckpointError
+from .checks import CheckpointError, load_weights_only
 from .runlog import atomic_write
 
 ACT_DIM = 4
@@ -151,12 +151,12 @@ def load_replay(directory: str | os.PathLike, buffer: ReplayBuffer, stored: int)
             continue
         if start > pos or end > stored:
             break
+        chunk = load_weights_only(p)
         try:
-            chunk = torch.load(p, map_location="cpu", weights_only=True)
             rows = chunk["rows"]
             ok = chunk.get("schema") == REPLAY_SCHEMA and tuple(rows.shape) == (end - start, buffer.width)
-        except Exception as e:  # a torn or foreign file
-            raise CheckpointError(f"{p}: unreadable replay chunk ({type(e).__name__}: {e})") from e
+        except Exception:  # a foreign file: not a dict, no rows, rows without a shape
+            ok = False
         if not ok:
             raise CheckpointError(f"{p}: not a replay chunk of this run (schema {REPLAY_SCHEMA}, width {buffer.width})")
         lo = max(start, pos)
