@@ -5,10 +5,13 @@
     .venv/bin/python benchmarks/report.py docs/bench/env_speed_randomized.json --randomized [--strip-data]
 
 Reads a pytest-benchmark JSON (`--benchmark-json=FILE`) and prints, per N: the raw dynamics step
-(float32, float64) and the vector env in M drone-steps/s, and their speed per drone-step relative to
-the single-environment loop of the same file, so every ratio comes from one run. Throughput is
-n·steps_per_round / round time, the round time being the chosen statistic (default: the fastest
-round, the least disturbed by other load on the machine).
+(float32, float64), the vector env and the vector env of the baseline commit (bb5efb7) in M
+drone-steps/s, the vector env's speed relative to that baseline (today ÷ baseline), and the speeds
+per drone-step relative to the single-environment loop of the same file, so every ratio comes from
+one run. Throughput is n·steps_per_round / round time, the round time being the chosen statistic
+(default: the fastest round, the least disturbed by other load on the machine). Then what the
+vector env's step leaves allocated (page faults per step, traced memory growth per step and the
+largest rise within a step beyond the arrays it returns) and the targets.
 
 --randomized: per N, the vector env without randomisation and with each preset (median round: rounds
 differ in how many drones reset), in M drone-steps/s and as a fraction of the unrandomised env.
@@ -24,6 +27,7 @@ import sys
 from pathlib import Path
 
 DYNAMICS_TARGET = 10e6  # drone-steps/s at N = 4096 (issue "foundation")
+VECTOR_ENV_TARGET = 10e6  # drone-steps/s at N = 4096, bit-identical to the baseline's outputs
 RATIO_TARGET = 300.0  # × the single-environment loop, per drone-step
 TARGET_N = 4096
 
@@ -39,7 +43,8 @@ def load(path: Path, stat: str) -> dict[tuple[str, str, int], dict]:
         info = b.get("extra_info", {})
         if not {"kind", "n", "dtype", "steps_per_round"} <= info.keys():
             continue  # some other suite's benchmark
-        seconds = b["stats"][stat]
+        # a case timed in a child process (the baseline commit's vector env) carries its own round times
+        seconds = info["round_s"][stat] if "round_s" in info else b["stats"][stat]
         key = (info["kind"], info["dtype"], int(info["n"]))
         if key in out:
             raise SystemExit(f"{path}: two benchmarks measure {key}; expected one run of test_env_speed.py")
@@ -84,17 +89,32 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(
         "| N | dynamics f32 (M drone-steps/s) | dynamics f64 (M drone-steps/s) | vector env (M drone-steps/s)"
-        " | vector env ÷ single-env loop | dynamics f32 ÷ single-env loop | dynamics f64 ÷ single-env loop |"
+        " | vector env bb5efb7 (M drone-steps/s) | vector env ÷ bb5efb7 | vector env ÷ single-env loop"
+        " | dynamics f32 ÷ single-env loop | dynamics f64 ÷ single-env loop |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n in ns:
         f32, f64, vec = rate("dynamics", n, "float32"), rate("dynamics", n, "float64"), rate("vector_env", n)
+        old = rate("vector_env_baseline", n)
         ratio = [None if (r is None or base is None) else r / base for r in (vec, f32, f64)]
+        now = None if vec is None or old is None else vec / old
         print(
-            f"| {n} | {fmt_rate(f32)} | {fmt_rate(f64)} | {fmt_rate(vec)} | "
+            f"| {n} | {fmt_rate(f32)} | {fmt_rate(f64)} | {fmt_rate(vec)} | {fmt_rate(old)} | {fmt_ratio(now)} | "
             + " | ".join(fmt_ratio(r) for r in ratio)
             + " |"
         )
+
+    allocs = [v for (k, _, _), v in sorted(res.items(), key=lambda kv: kv[0][2]) if k == "vector_env"]
+    if any("traced_growth_bytes_per_step" in v for v in allocs):
+        print()
+        print("What the vector env's step leaves allocated (after the timed rounds, one block under tracemalloc):")
+        for v in allocs:
+            print(
+                f"- N = {v['n']}: {v.get('page_faults_per_step', float('nan')):.2f} minor page faults per step; "
+                f"traced memory {v.get('traced_growth_bytes_per_step', float('nan')):+.0f} bytes per step; "
+                f"largest rise within a step beyond the arrays it returns: "
+                f"{v.get('traced_peak_beyond_results_bytes', float('nan')):,.0f} bytes"
+            )
 
     faulty = [v for v in res.values() if v.get("page_faults_per_step", 0.0) >= 1.0]
     if faulty:
@@ -119,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     checks = [
         (f"dynamics step float32, {at}, {speed}", f32, DYNAMICS_TARGET),
         (f"dynamics step float64, {at}, {speed}", f64, DYNAMICS_TARGET),
+        (f"vector env, {at}, ≥ {VECTOR_ENV_TARGET / 1e6:.0f} M drone-steps/s", vec, VECTOR_ENV_TARGET),
     ]
     if base is not None:
         checks += [

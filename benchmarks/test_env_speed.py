@@ -3,12 +3,15 @@
     (a) `quadpilot.core.dynamics.step` on N drones, float32 and float64;
     (b) `QuadVectorEnv` (hover) on N drones: action mapping, dynamics, observation, reward,
         termination and masked same-step autoreset;
-    (c) the baseline: one `gymnasium.make("quadpilot/Hover-v0")` env stepped in a Python loop,
-        resetting when an episode ends.
+    (b') the same vector env as commit bb5efb7 had it (`benchmarks/baseline.py`: that commit's
+        source, run in a child process once per session, timed the same way), so that the report's
+        ratio today ÷ baseline comes from one run on one machine;
+    (c) the baseline of the speed targets: one `gymnasium.make("quadpilot/Hover-v0")` env stepped
+        in a Python loop, resetting when an episode ends.
 
 Run (the project's addopts disable benchmarks, so enable them here):
 
-    .venv/bin/python -m pytest benchmarks --benchmark-enable --benchmark-only \
+    .venv/bin/python -m pytest benchmarks/test_env_speed.py --benchmark-enable --benchmark-only \
         --benchmark-json=/tmp/bench.json -p no:cacheprovider
     .venv/bin/python benchmarks/report.py /tmp/bench.json
 
@@ -17,18 +20,24 @@ a benchmark group (one N), round times compare directly; the N = 1 group holds t
 Rounds are fixed per N, which keeps the suite well under a minute on two cores. Actions are drawn
 once, before timing, uniform in [−1, 1] (what an untrained policy sends), so episodes end often and
 the autoreset path is part of what (b) and (c) time; the share of steps that ended an episode is
-recorded as `episode_end_fraction`. Without --benchmark-enable every case runs one block, a smoke test.
+recorded as `episode_end_fraction`. (b) also records what a step leaves allocated: minor page faults
+per step over the timed rounds, and, over `STEPS_PER_ROUND` more steps under tracemalloc, the
+growth of traced memory and the largest rise within a step beyond the arrays it returns. Without
+--benchmark-enable every case runs one block, a smoke test (the baseline child one round per N).
 """
 
 from __future__ import annotations
 
+import json
 import resource
+import tracemalloc
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import quadpilot.train  # noqa: F401  (registers quadpilot/Hover-v0)
+from baseline import BASELINE_COMMIT, baseline_src, run_python
 from quadpilot.core import dynamics
 from quadpilot.core.params import SEED_VEHICLE, ParamBatch
 from quadpilot.train.envs import QuadVectorEnv
@@ -134,6 +143,7 @@ def test_vector_env_step(benchmark, speed_results, n):
     for a in actions:  # untimed: how often the timed path went through autoreset
         _, _, term, trunc, _ = env.step(a)
         ended += int(np.count_nonzero(term | trunc))
+    growth, beyond = _traced(env, actions)
     env.close()
     _record(
         benchmark,
@@ -143,7 +153,100 @@ def test_vector_env_step(benchmark, speed_results, n):
         env.cfg.dtype,
         faults,
         episode_end_fraction=ended / (n * STEPS_PER_ROUND),
+        traced_growth_bytes_per_step=growth,
+        traced_peak_beyond_results_bytes=beyond,
     )
+
+
+def _traced(env, actions) -> tuple[float, int]:
+    """(traced memory growth per step, the largest rise of traced memory within a step beyond the
+    arrays the step returns) over one block of steps under tracemalloc, after one block of warm-up."""
+    tracemalloc.start()
+    try:
+        start, beyond = tracemalloc.get_traced_memory()[0], 0
+        for a in actions:
+            before = tracemalloc.get_traced_memory()[0]
+            tracemalloc.reset_peak()
+            obs, reward, term, trunc, infos = env.step(a)
+            results = [obs, reward, term, trunc, *(v for k, v in infos.items() if k != "episode")]
+            results += list(infos.get("episode", {}).values())
+            beyond = max(beyond, tracemalloc.get_traced_memory()[1] - before - sum(r.nbytes for r in results))
+            del obs, reward, term, trunc, infos, results
+        growth = (tracemalloc.get_traced_memory()[0] - start) / len(actions)
+    finally:
+        tracemalloc.stop()
+    return growth, beyond
+
+
+_BASELINE = pytest.StashKey[dict]()
+
+# Times the vector env of the code on the import path (the baseline commit's, see run_python) as
+# test_vector_env_step times today's: the same actions, rounds and warm-up per N; prints JSON.
+_BASELINE_CHILD = """
+import json, resource, sys, time
+import numpy as np
+from quadpilot.train.envs import QuadVectorEnv
+spec = json.loads(sys.argv[1])
+out = {}
+for n, rounds in spec["rounds"].items():
+    n = int(n)
+    env = QuadVectorEnv(n, task="hover")
+    env.reset(seed=0)
+    rng = np.random.default_rng(1)
+    actions = list(rng.uniform(-1.0, 1.0, (spec["steps"], n, 4)).astype(np.float32))
+    times = []
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for r in range(spec["warmup"] + rounds):
+        t = time.perf_counter()
+        for a in actions:
+            env.step(a)
+        t = time.perf_counter() - t
+        if r >= spec["warmup"]:
+            times.append(t)
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+    out[n] = {"round_s": times, "faults_per_step": faults / ((spec["warmup"] + rounds) * spec["steps"])}
+print(json.dumps(out))
+"""
+
+
+def _baseline_rounds(config, enabled: bool) -> dict:
+    """The baseline's round times per N, measured once per session (one round per N when the
+    benchmarks are disabled: a smoke test)."""
+    key = (_BASELINE, enabled)
+    cache = config.stash.setdefault(_BASELINE, {})
+    if key not in cache:
+        rounds = {n: ROUNDS[n] if enabled else 1 for n in NS}
+        spec = {"rounds": rounds, "steps": STEPS_PER_ROUND, "warmup": WARMUP_ROUNDS if enabled else 0}
+        out = run_python(_BASELINE_CHILD, baseline_src(), json.dumps(spec))
+        cache[key] = {int(n): v for n, v in json.loads(out.splitlines()[-1]).items()}
+    return cache[key]
+
+
+@pytest.mark.parametrize("n", NS, ids=[f"N{n}" for n in NS])
+def test_vector_env_step_baseline(benchmark, speed_results, request, n):
+    """(b') the vector env of commit bb5efb7, timed in a child process with that commit's source.
+    Its round times come from the child; the benchmark fixture times nothing here (it only places
+    the case in the run), so the report reads `round_s` instead of pytest-benchmark's statistics."""
+    benchmark.group = _group(n)
+    measured = _baseline_rounds(request.config, not benchmark.disabled)[n]
+    benchmark.pedantic(lambda: None, rounds=1, iterations=1)
+    times = np.asarray(measured["round_s"])
+    info = benchmark.extra_info
+    info.update(
+        kind="vector_env_baseline",
+        n=n,
+        dtype="float32",
+        steps_per_round=STEPS_PER_ROUND,
+        commit=BASELINE_COMMIT,
+        round_s={"min": float(times.min()), "median": float(np.median(times)), "mean": float(times.mean())},
+    )
+    if benchmark.disabled:
+        return
+    per_round = n * STEPS_PER_ROUND
+    info["drone_steps_per_s"] = per_round / times.min()
+    info["drone_steps_per_s_median"] = per_round / np.median(times)
+    info["page_faults_per_step"] = measured["faults_per_step"]
+    speed_results.append(dict(info))
 
 
 def test_single_env_loop(benchmark, speed_results):

@@ -7,6 +7,17 @@ steps) per round, on each runtime backend. Baselines in the same run: real time 
 the 100 Hz control rate) and the same policy stepping `core.dynamics` in this process with no wire
 at all (what the two processes and MAVLink cost).
 
+Against commit bb5efb7 (`test_lockstep_vs_baseline`): that commit's node flying against that
+commit's simulator, and today's against today's, each in a child process of its own (the node
+there, its simulator a grandchild: `python -m quadpilot.firmware_sim` of the same source, by
+`baseline.py`'s PYTHONPATH rule), one 20 s episode (2,000 steps) per round, rounds alternating
+between the two so that the load of a shared machine falls on both alike. Both fly one file:
+bb5efb7's own models/hover/policy.onnx (`git show bb5efb7:models/hover/policy.onnx`), because
+bb5efb7's runtime refuses today's shipped hover policy (its observation layout quadpilot.obs.hover/2
+came later) and today's runtime still flies the old one. Each child times its own rounds; the
+benchmark's statistics are today's rounds as this process sees them, and `extra_info` holds both
+children's round times, their steps/s, the ratio and the load average around the run.
+
 Real time at 100 Hz and 250 Hz: one 5 s flight per rate; the loop period jitter is |period − dt|
 between consecutive HIL_SENSOR arrivals at the node (what the control loop sees) and between
 consecutive simulator steps; p50/p99/max go into `extra_info`. At 250 Hz the 100 Hz policy is flown
@@ -22,13 +33,16 @@ Without --benchmark-enable each case runs once, a smoke test.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from baseline import BASELINE_COMMIT, REPO, BaselineUnavailable, baseline_src
 from quadpilot.core import dynamics
 from quadpilot.core.observation import build_observation
 from quadpilot.core.params import ParamBatch, get_preset
@@ -73,6 +87,138 @@ def test_lockstep_closed_loop(benchmark, backend):
         steps_per_round=steps,
         node_latency_p50_us=float(np.percentile(lat, 50)),
         node_latency_p99_us=float(np.percentile(lat, 99)),
+    )
+
+
+# One child per version: flies `steps` lockstep steps per "fly" line read from stdin against its own
+# simulator process and answers with one JSON line. Only names both versions have (bb5efb7's and
+# today's quadpilot.sitl._start_simulator, runtime.Node/NodeConfig/SafetyMonitor/load_policy).
+FLYER = r"""
+import json, sys, time
+import numpy as np
+from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.runtime.node import Node, NodeConfig
+from quadpilot.sitl import _start_simulator
+
+policy, backend, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])
+steps = round(duration * 100)
+cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
+proc, address = _start_simulator(cmd + ["--max-steps", str(steps + 10)])
+if proc is None:
+    raise SystemExit(f"simulator did not start: {address}")
+monitor = SafetyMonitor(load_policy(policy, backend))
+node = Node(NodeConfig(connect=address, duration_s=duration, gcs=None))
+print("ready", flush=True)
+try:
+    for line in sys.stdin:
+        if line.strip() != "fly":
+            break
+        t0 = time.perf_counter()
+        log = node.fly(monitor)
+        wall = time.perf_counter() - t0
+        lat = np.asarray(log.latency_s) * 1e6
+        print(json.dumps({"steps": log.steps, "wall_s": wall, "failsafe": log.failsafe,
+                          "latency_p50_us": float(np.percentile(lat, 50)) if lat.size else None}), flush=True)
+finally:
+    proc.terminate()
+    proc.wait(5)
+"""
+
+
+class _Flyer:
+    """A FLYER child on `src` (None: today's installed package), flying `policy`."""
+
+    def __init__(self, src: Path | None, policy: Path, backend: str, duration_s: float) -> None:
+        env = dict(os.environ)
+        if src is not None:  # baseline.run_python's rule: the baseline's source first on the import path
+            env["PYTHONPATH"] = os.pathsep.join([str(src), *filter(None, [env.get("PYTHONPATH")])])
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", FLYER, str(policy), backend, str(duration_s)],
+            env=env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        line = self.proc.stdout.readline().strip()
+        assert line == "ready", f"flyer on {src or 'today'} did not start: {line!r}"
+        self.rounds: list[dict] = []
+
+    def fly(self) -> dict:
+        self.proc.stdin.write("fly\n")
+        self.proc.stdin.flush()
+        out = json.loads(self.proc.stdout.readline())
+        assert out["failsafe"] is None, out
+        self.rounds.append(out)
+        return out
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                self.proc.stdin.write("quit\n")
+                self.proc.stdin.close()
+                self.proc.wait(10)
+            except (OSError, subprocess.TimeoutExpired):
+                self.proc.kill()
+                self.proc.wait()
+
+    def steps_per_s(self, rounds: list[dict]) -> float:
+        return sum(r["steps"] for r in rounds) / sum(r["wall_s"] for r in rounds)
+
+
+@pytest.fixture(scope="module")
+def baseline_policy(tmp_path_factory) -> Path:
+    """bb5efb7's shipped hover policy, which both versions can fly (see the module docstring)."""
+    out = tmp_path_factory.mktemp("baseline") / "hover_policy.onnx"
+    try:
+        data = subprocess.run(
+            ["git", "-C", str(REPO), "show", f"{BASELINE_COMMIT}:models/hover/policy.onnx"],
+            capture_output=True,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.CalledProcessError) as e:
+        pytest.skip(f"no {BASELINE_COMMIT} in this checkout's history: {e}")
+    out.write_bytes(data)
+    return out
+
+
+@pytest.mark.parametrize("backend", ["numpy"])
+def test_lockstep_vs_baseline(benchmark, backend, baseline_policy):
+    """Lockstep steps/s of today's node and simulator against bb5efb7's, side by side, alternating."""
+    try:
+        src = baseline_src()
+    except BaselineUnavailable as e:
+        pytest.skip(str(e))
+    load = [os.getloadavg()]
+    old = _Flyer(src, baseline_policy, backend, LOCKSTEP_S)
+    new = _Flyer(None, baseline_policy, backend, LOCKSTEP_S)
+    try:
+        warm = 0 if benchmark.disabled else 1
+        for _ in range(warm):  # one round each first: imports, caches, the simulator's first episode
+            old.fly()
+            new.fly()
+        old.rounds.clear()
+        new.rounds.clear()
+        # bb5efb7's round runs as the (untimed) setup of each of today's rounds: they alternate
+        benchmark.pedantic(new.fly, setup=lambda: old.fly() and None, rounds=5, iterations=1)
+    finally:
+        old.close()
+        new.close()
+    load.append(os.getloadavg())
+    steps = round(LOCKSTEP_S * 100)
+    assert all(r["steps"] == steps for r in old.rounds + new.rounds)
+    rate_old, rate_new = old.steps_per_s(old.rounds), new.steps_per_s(new.rounds)
+    benchmark.extra_info.update(
+        baseline_commit=BASELINE_COMMIT,
+        policy=f"{BASELINE_COMMIT}:models/hover/policy.onnx",
+        steps_per_round=steps,
+        baseline_round_s=[r["wall_s"] for r in old.rounds],
+        today_round_s=[r["wall_s"] for r in new.rounds],
+        baseline_steps_per_s=rate_old,
+        today_steps_per_s=rate_new,
+        vs_baseline=rate_new / rate_old,
+        baseline_latency_p50_us=old.rounds[-1]["latency_p50_us"],
+        today_latency_p50_us=new.rounds[-1]["latency_p50_us"],
+        load_average_1_5_15=[list(x) for x in load],
     )
 
 

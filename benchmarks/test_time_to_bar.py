@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import json
 
+import report_time_to_bar
 import time_to_bar
 
 
-def test_time_to_bar_smoke(tmp_path):
+def test_time_to_bar_smoke(tmp_path, capsys):
     out = tmp_path / "ttb.json"
     assert time_to_bar.main(["--seeds", "0", "--total-steps", "16384", "--out", str(out), "--work", str(tmp_path)]) == 0
     r = json.loads(out.read_text())
@@ -23,3 +24,5 @@ def test_time_to_bar_smoke(tmp_path):
     assert heading in json.loads((tmp_path / "today-seed0" / "eval.json").read_text())
     assert heading not in json.loads((tmp_path / "baseline-seed0" / "eval.json").read_text())
     assert r["speedup_median"] is None and r["every_seed_reached"] == {"baseline": False, "today": False}
+    assert report_time_to_bar.main([str(out)]) == 0
+    assert "| 0 | not reached | not reached |" in capsys.readouterr().out

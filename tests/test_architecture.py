@@ -64,3 +64,88 @@ def test_every_import_between_packages_is_one_the_table_allows():
             if target not in rules.get(pkg, set()):
                 broken.append(f"{path.relative_to(ROOT)} imports quadpilot.{target}")
     assert not broken, "imports docs/architecture.md does not allow:\n" + "\n".join(broken)
+
+
+# --- the size of the rooms --------------------------------------------------------------------
+
+MAX_LINES = 600
+MAX_FOLDER_SHARE = 0.30
+
+
+def _lines(path: Path) -> int:
+    return len(path.read_text(encoding="utf-8").splitlines())
+
+
+def test_no_source_file_is_longer_than_600_lines():
+    long = {str(p.relative_to(SRC)): n for p in sorted(SRC.rglob("*.py")) if (n := _lines(p)) > MAX_LINES}
+    assert not long, f"split these modules (lines): {long}"
+
+
+def test_no_folder_holds_more_than_30_percent_of_the_package():
+    total = sum(_lines(p) for p in SRC.rglob("*.py"))
+    shares = {
+        d.name: sum(_lines(p) for p in d.rglob("*.py")) / total
+        for d in SRC.iterdir()
+        if d.is_dir() and d.name != "__pycache__"
+    }
+    big = {k: f"{v:.0%}" for k, v in shares.items() if v > MAX_FOLDER_SHARE}
+    assert len(shares) >= 8 and not big, f"these folders hold more than {MAX_FOLDER_SHARE:.0%} of the lines: {big}"
+
+
+def test_no_import_circle_between_the_modules_of_the_package():
+    """Module-level graph over every module of src/quadpilot (imports inside functions included):
+    a circle anywhere, within a package or across packages, fails."""
+    modules = {
+        ".".join(p.relative_to(SRC).with_suffix("").parts).removesuffix(".__init__"): p for p in SRC.rglob("*.py")
+    }
+    modules.pop("__init__", None)
+
+    def targets(name: str, path: Path) -> set[str]:
+        package = name.split(".")[:-1] if path.name != "__init__.py" else name.split(".")
+        out = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package[: len(package) - node.level + 1]
+                    mod = [*base, *(node.module.split(".") if node.module else [])]
+                elif (node.module or "").startswith("quadpilot."):
+                    mod = node.module.split(".")[1:]
+                else:
+                    continue
+                for a in node.names:  # `from .pkg import module` names a module, else the module itself
+                    full = ".".join([*mod, a.name])
+                    out.add(full if full in modules else ".".join(mod))
+            elif isinstance(node, ast.Import):
+                out.update(".".join(a.name.split(".")[1:]) for a in node.names if a.name.startswith("quadpilot."))
+        return {t for t in out if t in modules and t != name and not name.startswith(t + ".")}
+
+    graph = {name: targets(name, p) for name, p in modules.items()}
+    state: dict[str, int] = {}
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                raise AssertionError(f"import circle: {' → '.join([*path, node, nxt])}")
+            if nxt not in state:
+                visit(nxt, [*path, node])
+        state[node] = 2
+
+    assert len(graph) > 80
+    for name in sorted(graph):
+        if name not in state:
+            visit(name, [])
+
+
+ISSUE_NUMBER = re.compile(r"(?i)(?<!github )\b(issue|task|ticket)\s*#?\d+|(?<![\w/])(?<!issue )#\d{1,4}\b")
+
+
+def test_no_comment_or_docstring_cites_an_issue_number():
+    """A reader of the code cannot look up our issue tracker: a comment cites what a reader can find
+    (a paper, PX4's or MAVLink's docs, another project's GitHub issue by its repository's name)."""
+    found = []
+    for path in sorted(SRC.rglob("*.py")):
+        for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if ISSUE_NUMBER.search(line):
+                found.append(f"{path.relative_to(ROOT)}:{n}: {line.strip()[:100]}")
+    assert not found, "cites an issue number:\n" + "\n".join(found)

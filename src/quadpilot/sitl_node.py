@@ -306,7 +306,7 @@ def _mean_of(eps: list[dict], key: str, reduce=np.mean) -> float:
 
 
 def summarise(logs, period: float, task: str = "hover") -> dict:
-    from quadpilot.runtime.node import episode_summary
+    from quadpilot.runtime.flight_log import episode_summary
 
     eps = [episode_summary(log, period, task) for log in logs]
     lat = np.concatenate([np.asarray(log.latency_s) for log in logs]) * 1e6 if logs else np.zeros(0)

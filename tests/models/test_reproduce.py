@@ -187,6 +187,8 @@ def test_the_smallest_shipped_model_retrains_from_its_recorded_command(tmp_path)
     model = smallest_model()
     out = tmp_path / "run"
     env, args = recorded_command(model, out)
+    if "update" not in json.loads((model / "config.json").read_text()).get("ppo", {}):
+        args += ["--update", "torch"]  # trained before PPOConfig.update existed, so with torch
     code = "import sys; from quadpilot.train.cli import main; sys.exit(main(sys.argv[1:]))"
     r = subprocess.run(
         [sys.executable, "-c", code, *args], cwd=tmp_path, capture_output=True, text=True, env={**os.environ, **env}

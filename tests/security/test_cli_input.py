@@ -615,9 +615,7 @@ def test_a_checkpoint_never_runs_the_code_it_holds(driven):
         "a torch zip whose pickle runs a command",
         "a protocol-4 pickle that runs a command",
         "a torch zip whose protocol-4 pickle runs a command",
-    } <= {
-        c.name for c in groups["policy"]
-    }
+    } <= {c.name for c in groups["policy"]}
     assert not marker.exists()
 
 

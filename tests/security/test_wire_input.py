@@ -29,7 +29,8 @@ from quadpilot.firmware_sim import sensors
 from quadpilot.firmware_sim.sim import TIME_ORIGIN_US, Plant, SimConfig, Simulator
 from quadpilot.link import transport, wire
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import Node, NodeConfig, episode_summary
+from quadpilot.runtime.flight_log import episode_summary
+from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import SHIPPED_HOVER
 
 HOME = wire.Home()

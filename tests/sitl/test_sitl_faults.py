@@ -18,7 +18,8 @@ import pytest
 
 from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import Node, NodeConfig, episode_summary
+from quadpilot.runtime.flight_log import episode_summary
+from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import SHIPPED_HOVER, _start_simulator, main
 
 pytestmark = pytest.mark.sitl

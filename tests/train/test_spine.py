@@ -3,19 +3,19 @@ schema. Pinned against the code before it (quadpilot f6db119): checkpoints that 
 and continue to the very weights that code computed, and tiny PPO, recurrent PPO and SAC runs give
 the weights they gave then. Then: SAC takes the environment options (randomisation, sensor noise,
 motor lag) and snapshots as PPO does, and its checkpoint carries their state; --set sets PPO's
-hyper-parameters too; and the modules of train form no import circle and stay short.
+hyper-parameters too. (No import circle and no module over 600 lines: tests/test_architecture.py.)
 
 The pinned weights are sha256 hashes of every tensor's bytes. Float results can differ between CPU
 instruction sets and torch versions, so the hashes are compared only where they were computed (the
 torch version and CPU capability in data/pre_spine/expected.json); elsewhere those checks skip, and
 what remains is that the files load and training continues."""
 
-import ast
 import hashlib
 import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -30,7 +30,6 @@ SAME_MACHINE = EXPECTED["made_with"] == {
     "torch": torch.__version__,
     "cpu_capability": torch.backends.cpu.get_cpu_capability(),
 }
-SRC = Path(__file__).parents[2] / "src" / "quadpilot"
 
 
 def digest(*state_dicts) -> str:
@@ -65,19 +64,18 @@ def test_a_checkpoint_written_before_the_spine_resumes_to_the_same_weights(tmp_p
 
 TINY = ["--threads", "1", "--eval-episodes", "0", "--eval-every", "0"]
 # quad-train flags → sha256 of policy.pt's model, computed by quadpilot f6db119 on this machine; that
-# code trained what --obs-version 1 trains (world-frame attitude, no heading to hold)
+# code trained what --obs-version 1 trains (world-frame attitude, no heading to hold), and with torch:
+# --update torch keeps these runs on the reference path now that an MLP's default is numpy
+PPO_TINY = [
+    *("--task", "hover", "--num-envs", "16", "--rollout-steps", "16", "--minibatch-size", "64"),
+    *("--total-steps", "512"),
+]
 RUNS = {
-    "ppo": (
-        [
-            *("--task", "hover", "--num-envs", "16", "--rollout-steps", "16", "--minibatch-size", "64"),
-            *("--total-steps", "512"),
-        ],
-        "dd7ecdeaa3943416c1908330d3e4d9ac5ca2c734d02afd3b3c1f7974a5bc4ab9",
-    ),
+    "ppo": ([*PPO_TINY, "--update", "torch"], "dd7ecdeaa3943416c1908330d3e4d9ac5ca2c734d02afd3b3c1f7974a5bc4ab9"),
     "lstm": (
         [
             *("--task", "hover", "--arch", "lstm", "--bptt-steps", "8", "--num-envs", "8", "--rollout-steps", "16"),
-            *("--minibatch-size", "64", "--total-steps", "256", "--randomize", "--sensor-noise"),
+            *("--minibatch-size", "64", "--total-steps", "256", "--randomize", "--sensor-noise", "--update", "torch"),
         ],
         "70388ce6e3ab80aa7d790b81019df85db2b498430df97eb0860dcd75800b4fee",
     ),
@@ -98,6 +96,27 @@ def test_two_iterations_give_the_weights_they_gave_before_the_spine(tmp_path, ki
     ckpt = load_checkpoint(tmp_path / "run" / "policy.pt")
     assert ckpt["updates"] == 2
     pinned(digest(ckpt["model"]), want)
+
+
+# The NumPy update (quadpilot.train.numpy_ppo) on the same run: pinned when it was written, with its own
+# machine key, since its products run in numpy's BLAS, not torch's.
+NUMPY_RUN = ([*PPO_TINY, "--update", "numpy"], "6397f9f66873dc26de18a7cb380640a18b97487d5dbe5833fa22fe9ff0b023b8")
+NUMPY_MADE_WITH = {"numpy": "2.4.6", "blas": "0.3.31.188.0", "cpu_capability": "AVX512"}
+
+
+def test_two_iterations_on_the_numpy_update_give_the_weights_pinned_for_it(tmp_path):
+    argv, want = NUMPY_RUN
+    assert main([*argv, *TINY, "--obs-version", "1", "--out", str(tmp_path / "run")]) == 0
+    ckpt = load_checkpoint(tmp_path / "run" / "policy.pt")
+    assert ckpt["updates"] == 2
+    here = {
+        "numpy": np.__version__,
+        "blas": np.__config__.CONFIG["Build Dependencies"]["blas"].get("version"),
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+    }
+    if here != NUMPY_MADE_WITH:
+        pytest.skip(f"weights pinned with {NUMPY_MADE_WITH}; this machine has {here}")
+    assert digest(ckpt["model"]) == want
 
 
 # --- one set of options for every algorithm ---------------------------------------------------
@@ -139,46 +158,3 @@ def test_set_sets_ppo_hyper_parameters_too_and_a_resume_keeps_them(tmp_path, cap
     assert cfg["ent_coef"] == 0.01 and cfg["actor_hidden"] == [16, 16]
     assert main([*ppo, "--total-steps", "512", "--resume", "--set", "ent_coef=0.02"]) == 2
     assert "--ent-coef 0.02 (checkpoint: 0.01)" in capsys.readouterr().err
-
-
-# --- the layout of the package ----------------------------------------------------------------
-
-
-def _imports(path: Path, package: str) -> set[str]:
-    """The modules of quadpilot.<package> that `path` imports, at the top or inside a function."""
-    out = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.ImportFrom):
-            if node.level == 1:
-                names = [node.module] if node.module else [a.name for a in node.names]
-            elif node.level == 0 and (node.module or "").startswith(f"quadpilot.{package}"):
-                rest = node.module.removeprefix(f"quadpilot.{package}").lstrip(".")
-                names = [rest] if rest else [a.name for a in node.names]
-            else:
-                continue
-            out.update(n.split(".")[0] for n in names)
-        elif isinstance(node, ast.Import):
-            out.update(a.name.split(".")[2] for a in node.names if a.name.startswith(f"quadpilot.{package}."))
-    return out - {path.stem}
-
-
-@pytest.mark.parametrize("package", ["train", "studies"])
-def test_the_modules_form_no_import_circle_and_none_is_longer_than_600_lines(package):
-    files = {p.stem: p for p in (SRC / package).glob("*.py")}
-    long = {name: n for name, p in files.items() if (n := len(p.read_text(encoding="utf-8").splitlines())) > 600}
-    assert not long, f"split these modules of {package} (lines): {long}"
-    graph = {name: _imports(p, package) & set(files) for name, p in files.items()}
-    state: dict[str, int] = {}  # 1: on the current path, 2: done
-
-    def visit(node: str, path: list[str]) -> None:
-        state[node] = 1
-        for nxt in sorted(graph[node]):
-            if state.get(nxt) == 1:
-                raise AssertionError(f"import circle in {package}: {' → '.join([*path, node, nxt])}")
-            if nxt not in state:
-                visit(nxt, [*path, node])
-        state[node] = 2
-
-    for name in sorted(graph):
-        if name not in state:
-            visit(name, [])

@@ -32,6 +32,10 @@ rotors spin down through the motor lag and stop. The rotor state itself is not c
 starting at rest spins up to ω_min through the lag (RotorPy also clips its state, which makes a
 rotor at rest jump to ω_min in one step).
 
+`step` allocates its results and intermediates; `Stepper` does the same arithmetic in place on
+state rows (12, N) with buffers made once, bit for bit, for a batch stepped every control period
+(the training environments).
+
 Integration per (sub)step of length h: rotor lag exactly discretised; body rates by Euler's
 rotational equation with the gyroscopic term ω × (Iω), forward in time; Euler angles advanced with
 the mid-step rates (exact for a constant torque about one axis); position with the constant-
@@ -57,6 +61,7 @@ from .state import RATES as RATES
 from .state import STATE_DIM as STATE_DIM
 from .state import STATE_NAMES as STATE_NAMES
 from .state import VEL as VEL
+from .state import YAW, P, Q, R
 
 # PX4's quad-X (`core.params.quad_x`): rotor positions as multiples of arm/√2 in the FLU body frame,
 # and spin (+1 = CCW seen from above), in its output order. The layout of the presets and of every
@@ -182,10 +187,17 @@ def _wrench_function(layout: tuple, scales: tuple, cast):
     """f ↦ (thrust, τx, τy, τz) for a batch's layout (`ParamBatch.layout`: x/arm, y/arm, spin in
     FLU per rotor), with τx = arm·Σ y_i·F_i, τy = −arm·Σ x_i·F_i, τz = −k_m·Σ spin_i·F_i (module
     docstring); `scales` the per-drone (arm, arm, k_m)."""
-    make, factors, coefs = _wrench_maker(layout)
+    make, factors, coefs, terms = _wrench_maker(layout)
     consts = [cast(scale / (1.0 / g)) for scale, g in zip(scales, factors, strict=True) if g]
-    fn = make(*consts, *(cast(k)[()] for k in coefs))
+    ks = [cast(k)[()] for k in coefs]
+    fn = make(*consts, *ks)
     fn.source = make.source
+    # the same rows with the same constants, for `_wrench_into_function` (the in-place step)
+    bound = iter(consts)
+    fn.rows = tuple(
+        None if row is None else (next(bound), tuple((neg, None if j is None else ks[j], i) for neg, j, i in row))
+        for row in terms
+    )
     return fn
 
 
@@ -194,7 +206,7 @@ _MAX_WRENCH_MAKERS = 64  # layouts compiled per process; a batch has one, a run 
 
 
 def _wrench_maker(layout: tuple):
-    """(make, row factors g, other coefficients) for a layout, compiled once per layout.
+    """(make, row factors g, other coefficients, row terms) for a layout, compiled once per layout.
 
     The mixer is written out as one expression per row and compiled, so that stepping costs what a
     hand-written mixer costs: each row's largest |coefficient| g goes into a per-drone factor, so
@@ -203,31 +215,38 @@ def _wrench_maker(layout: tuple):
     any other coefficient is one more multiplication. `make(a0, a1, a2, k...)` binds the per-drone
     factors (arm·g, k_m·g) and coefficients of a batch without compiling again (domain randomisation
     makes a new batch at every reset). The source holds only rotor indices, signs and names made
-    here, never text from a vehicle file."""
+    here, never text from a vehicle file. The row terms, (negative, coefficient index or None,
+    rotor index) in the source's order, let `_wrench_into_function` write the same expressions in place."""
     hit = _WRENCH_MAKERS.get(layout)
     if hit is not None:
         return hit
     lay = np.asarray(layout, dtype=np.float64)
     factors, coefs, params, rows = [], [], [], []
+    terms = []  # per row: None (no torque) or its terms (negative, coefficient index or None, rotor)
     for r, coef in enumerate((lay[:, 1], -lay[:, 0], -lay[:, 2])):
         g = float(np.abs(coef).max())
         factors.append(g)
         if g == 0.0:
             rows.append("0.0")  # no rotor makes this torque (VehicleParams refuses such layouts)
+            terms.append(None)
             continue
         params.append(f"a{r}")
         expr = ""
+        row_terms = []
         for i, ci in enumerate(coef):
             k = float(ci / g)
             if k == 0.0:
                 continue
             if k in (1.0, -1.0):
                 term = f"f[{i}]"
+                row_terms.append((k < 0, None, i))
             else:
                 coefs.append(abs(k))
                 term = f"k{len(coefs) - 1} * f[{i}]"
+                row_terms.append((k < 0, len(coefs) - 1, i))
             expr += (" - " if k < 0 else " + ") + term if expr else ("-" if k < 0 else "") + term
         rows.append(f"a{r} * ({expr})")
+        terms.append(tuple(row_terms))
     params += [f"k{j}" for j in range(len(coefs))]
     thrust = " + ".join(f"f[{i}]" for i in range(len(lay)))
     src = (
@@ -241,7 +260,7 @@ def _wrench_maker(layout: tuple):
     make.source = src  # what was compiled, for a reader (and the tests)
     if len(_WRENCH_MAKERS) >= _MAX_WRENCH_MAKERS:
         _WRENCH_MAKERS.clear()
-    _WRENCH_MAKERS[layout] = hit = (make, tuple(factors), tuple(coefs))
+    _WRENCH_MAKERS[layout] = hit = (make, tuple(factors), tuple(coefs), tuple(terms))
     return hit
 
 
@@ -288,6 +307,276 @@ def _substep(s, w, u, d: _Derived, h: float, ext: tuple | None = None):
     x1, y1, z1 = x + h * vx + hh * ax, y + h * vy + hh * ay, z + h * vz + hh * az
     vx1, vy1, vz1 = vx + h * ax, vy + h * ay, vz + h * az
     return [x1, y1, z1, vx1, vy1, vz1, phi1, th1, psi1, p1, q1, r1], w
+
+
+class Stepper:
+    """`step` in place, for a batch stepped every control period: the state and rotor rows are
+    advanced where they lie and every intermediate lives in rows allocated here once, so a step
+    allocates no array (`train.envs.QuadBatch` steps this way).
+
+    The arithmetic is `_substep`'s, operation for operation and in the same order, each NumPy ufunc
+    writing into a buffer instead of a new array: a ufunc computes the same bits wherever it writes,
+    sin, cos and floor give each element the same bits at any position and stride, and a Python
+    float meets an array as that array's dtype (NEP 50), so the constants are cast once. Drone i
+    gets bit for bit what `step` gives it (tests/core/test_inplace_equivalence.py checks this
+    against `step` over rotor layouts, lags, drag, idle speeds, external forces, substeps and both
+    dtypes).
+
+    Speed: a NumPy call costs about a microsecond at N = 4096 whatever it computes, so the calls are
+    few: a quantity computed once per axis is one call over a (3, N) block where `_substep` makes
+    three, and per-drone constants that meet a block are stored at the block's shape (a broadcast
+    (N,) operand costs a call per row). The sines, cosines and thrust direction of the state at the
+    start of a step may be handed in (`trig`) by a caller that has them: `ObservationBuilder`
+    computes the same numbers from the same state."""
+
+    def __init__(self, n: int, n_rotors: int, dtype) -> None:
+        self.n, self.m, self.dtype = int(n), int(n_rotors), np.dtype(dtype)
+        rows = lambda k: np.empty((k, self.n), self.dtype)  # noqa: E731
+        self.f = rows(self.m)  # rotor thrusts F_i, N
+        self.wrench = rows(4)  # thrust, τx, τy, τz
+        self.gyro = rows(3)  # the gyroscopic terms, then the rate increments
+        self.rates1 = rows(3)  # p, q, r at the end of the substep
+        self.mid = rows(3)  # p, q, r at mid-step
+        self.sin, self.cos = rows(3), rows(3)  # of roll, pitch, yaw at the start of the substep
+        self.zaxis = rows(3)  # R·e3: the thrust direction, world ENU
+        self.inc = rows(3)  # roll, pitch, yaw increments
+        self.acc = rows(3)  # m/s², world ENU
+        self.block = rows(3)  # scratch for a (3, N) product
+        self.acc_ext, self.mom_ext = rows(3), rows(3)  # external force / m and moment, in the state dtype
+        self.t = rows(3)
+        # the rows as views made once (making a view costs a fraction of a microsecond)
+        self._f_rows, self._wr_rows = tuple(self.f), tuple(self.wrench)
+        self._rows = (*self.sin, *self.cos, *self.mid, *self.gyro, *self.t, *self.inc, *self.zaxis)
+        self._state_views: tuple = (None, None)
+
+    def _views(self, s: np.ndarray) -> tuple:
+        """The views of the state rows the substep reads, made once per state array."""
+        if self._state_views[0] is not s:
+            self._state_views = (s, (s[POS], s[VEL], s[ATT], s[RATES], s[YAW], s[P], s[Q], s[R]))
+        return self._state_views[1]
+
+    def step(
+        self,
+        s: np.ndarray,
+        w: np.ndarray,
+        u: np.ndarray,
+        params: ParamBatch,
+        dt: float = DT,
+        substeps: int = 1,
+        force: np.ndarray | None = None,
+        torque: np.ndarray | None = None,
+        trig: tuple | None = None,
+    ) -> None:
+        """Advance N drones by `dt` in place: s (12, N) state rows (`core.state` order), w (M, N)
+        rotor rows; u (M, N) commanded speeds, clipped here in place to [ω_min/ω_max, 1] as `step`
+        clips them; force and torque (N, 3) as `step` takes them (None: none). s, w and u in the
+        dtype this Stepper was made for. trig: None, or (sin, cos, zaxis) of the state s holds now,
+        each (3, N): sin and cos of roll, pitch, yaw, and (R02, R12, R22) as
+        `frames.euler_to_rotmat_rows` computes them (the same operations as `_substep`'s
+        acceleration terms), used for the first substep instead of computing them again."""
+        n, m = self.n, self.m
+        if s.shape != (STATE_DIM, n) or w.shape != (m, n) or u.shape != (m, n):
+            raise ValueError(
+                f"state, rotor and command rows must have shapes ({STATE_DIM}, {n}), ({m}, {n}) and ({m}, {n}), "
+                f"got {s.shape}, {w.shape} and {u.shape}"
+            )
+        if params.n != n or params.n_rotors != m:
+            raise ValueError(f"params hold {params.n} drones of {params.n_rotors} rotors, expected {n} of {m}")
+        h = dt / substeps
+        d = _derived(params, h, self.dtype)
+        k = d.__dict__.get("stepper")
+        if k is None:  # what the in-place substep adds to the derived constants, once per batch and h
+            k = d.stepper = _StepperConstants(d, h, self.dtype, m)
+        acc = mom = None
+        if force is not None:  # `_external`: force/m, computed in the pair's type, cast to the state dtype
+            force = np.asarray(force)
+            if force.shape != (n, 3):
+                raise ValueError(f"force must have shape ({n}, 3) (N, world ENU), got {force.shape}")
+            acc = self.acc_ext
+            for i in range(3):
+                np.divide(force[:, i], params.mass, acc[i], casting="unsafe")
+        if torque is not None:
+            torque = np.asarray(torque)
+            if torque.shape != (n, 3):
+                raise ValueError(f"torque must have shape ({n}, 3) (N·m, body FLU), got {torque.shape}")
+            mom = self.mom_ext
+            np.copyto(mom, torque.T, casting="unsafe")
+        _clip(u, k.u_min, 1.0, u)
+        for i in range(substeps):
+            self._substep(s, w, u, d, k, acc, mom, trig if i == 0 else None)
+
+    def _substep(self, s, w, u, d: _Derived, k: _StepperConstants, acc, mom, trig) -> None:
+        """`_substep` in place; each comment gives the line of `_substep` the calls below it compute."""
+        mul, add, sub = np.multiply, np.add, np.subtract
+        pos, vel, att, rates, psi, p, q, r = self._views(s)
+        sphi, sth, spsi, cphi, cth, cpsi, pm, qm, rm, g0, g1, g2, t1, t2, t3, i0, i1, i2, z0, z1, z2 = self._rows
+        if d.lag:  # w = ui + decay·(wi − ui)
+            sub(w, u, w)
+            mul(k.decay, w, w)
+            add(u, w, w)
+        else:
+            np.copyto(w, u)
+        f = self.f  # f = f_max·wi·wi
+        mul(k.f_max, w, f)
+        mul(f, w, f)
+        wr = self.wrench  # thrust, tx, ty, tz = wrench(f)
+        k.wrench_into(self._f_rows, self._wr_rows, t1)
+        torque = wr[1:4]
+        if mom is not None:  # tx, ty, tz = tx + m_x, ...
+            add(torque, mom, torque)
+
+        # p1 = p + h·(tx − izz_iyy·q·r)·inv_ixx; q1 = q + h·(ty − ixx_izz·p·r)·inv_iyy; r1 alike
+        gyro = self.gyro
+        mul(k.izz_iyy, q, g0)
+        mul(g0, r, g0)
+        mul(k.ixx_izz, p, g1)
+        mul(g1, r, g1)
+        mul(k.iyy_ixx, p, g2)
+        mul(g2, q, g2)
+        sub(torque, gyro, gyro)
+        mul(k.h, gyro, gyro)
+        mul(gyro, k.inv_inertia, gyro)
+        rates1 = self.rates1
+        add(rates, gyro, rates1)
+        mid = self.mid  # pm, qm, rm = 0.5·(p + p1), ...
+        add(rates, rates1, mid)
+        mul(k.half, mid, mid)
+
+        if trig is None:  # sin and cos of φ, θ, ψ
+            sn, cs, za = self.sin, self.cos, None
+            np.sin(att, sn)
+            np.cos(att, cs)
+        else:
+            sn, cs, za = trig
+        sphi, sth, spsi = sn
+        cphi, cth, cpsi = cs
+
+        qs = t3
+        mul(qm, sphi, qs)  # qs_rc = qm·sphi + rm·cphi
+        mul(rm, cphi, t1)
+        add(qs, t1, qs)
+        # phi1, th1, psi1 = phi + h·(pm + qs_rc·sth/cth), th + h·(qm·cphi − rm·sphi), psi + h·(qs_rc/cth)
+        inc = self.inc
+        mul(qs, sth, t1)
+        np.divide(t1, cth, t1)
+        add(pm, t1, i0)
+        mul(qm, cphi, t1)
+        mul(rm, sphi, t2)
+        sub(t1, t2, i1)
+        np.divide(qs, cth, i2)
+        mul(k.h, inc, inc)
+        add(att, inc, att)
+        add(psi, k.pi, t1)  # psi1 = psi1 − 2π·floor((psi1 + π)/(2π))
+        mul(t1, k.inv_two_pi, t1)
+        np.floor(t1, t1)
+        mul(k.two_pi, t1, t1)
+        sub(psi, t1, psi)
+
+        # ax, ay, az = t_m·(cpsi·sth·cphi + spsi·sphi), t_m·(spsi·sth·cphi − cpsi·sphi), t_m·(cth·cphi) − g
+        if za is None:
+            za = self.zaxis
+            mul(cpsi, sth, t1)
+            mul(t1, cphi, t1)
+            mul(spsi, sphi, t2)
+            add(t1, t2, z0)
+            mul(spsi, sth, t1)
+            mul(t1, cphi, t1)
+            mul(cpsi, sphi, t2)
+            sub(t1, t2, z1)
+            mul(cth, cphi, z2)
+        x = self.acc
+        mul(wr[0], d.inv_m, t1)  # t_m = thrust·inv_m
+        for i in range(3):  # row by row: a broadcast (N,) operand would make NumPy allocate a buffer
+            mul(t1, za[i], x[i])
+        sub(x[2], d.g, x[2])
+        blk = self.block
+        if d.drag:  # ax = ax − drag_over_m·vx, ...
+            mul(k.drag_over_m, vel, blk)
+            sub(x, blk, x)
+        if acc is not None:  # ax = ax + force_x/m, ...
+            add(x, acc, x)
+        mul(k.h, vel, blk)  # x1 = x + h·vx + hh·ax, ...
+        add(pos, blk, pos)
+        mul(k.hh, x, blk)
+        add(pos, blk, pos)
+        mul(k.h, x, blk)  # vx1 = vx + h·ax, ...
+        add(vel, blk, vel)
+        np.copyto(rates, rates1)
+
+
+class _StepperConstants:
+    """What `Stepper` needs beyond `_Derived`: per-drone constants at the shape of the blocks they
+    multiply (the same numbers, repeated), the inertia terms, the Python-float constants of
+    `_substep` in the state dtype (what NumPy casts them to there), and the layout's mixer in place."""
+
+    def __init__(self, d: _Derived, h: float, dtype, m: int) -> None:
+        t = np.dtype(dtype).type
+        n = d.inv_m.shape[0]
+        rows = lambda a, k: np.ascontiguousarray(np.broadcast_to(a, (k, n)))  # noqa: E731
+        self.f_max = rows(d.f_max, m)
+        self.u_min = d.u_min if np.isscalar(d.u_min) else rows(d.u_min[:, 0], m)
+        self.decay = rows(d.decay, m) if d.lag else None
+        self.drag_over_m = rows(d.drag_over_m, 3) if d.drag else None
+        self.izz_iyy, self.ixx_izz, self.iyy_ixx = d.izz_iyy, d.ixx_izz, d.iyy_ixx
+        self.inv_inertia = np.stack([d.inv_ixx, d.inv_iyy, d.inv_izz])
+        self.h, self.half, self.hh = t(h), t(0.5), t(0.5 * h * h)
+        self.pi, self.two_pi, self.inv_two_pi = t(np.pi), t(_TWO_PI), t(_INV_TWO_PI)
+        self.wrench_into = _wrench_into_function(d.wrench.rows, m)
+
+
+try:  # the ufunc np.clip calls, without np.clip's dispatch (a microsecond a call); the same values
+    from numpy._core.umath import clip as _clip
+except ImportError:  # pragma: no cover - a NumPy that moved it
+    _clip = np.clip
+
+
+def _wrench_into_function(rows, m: int):
+    """wrench_into(f_rows, out_rows, tmp): the wrench function's expressions (`_wrench_maker`) for
+    rotor thrust rows f_rows (M of (N,)), evaluated into out_rows (thrust, τx, τy, τz) with the same
+    operations in the same order, tmp an (N,) scratch row. `rows` is the wrench function's `rows`
+    (per torque row: None, or the per-drone factor and the terms). Written out as straight-line
+    code like the allocating mixer, so stepping pays no loop over terms; the source holds only
+    indices and names made here."""
+    consts: list = []
+
+    def const(value) -> str:
+        consts.append(value)
+        return f"c{len(consts) - 1}"
+
+    body = [f"    f{i} = f[{i}]" for i in range(m)] + ["    o0, o1, o2, o3 = out"]
+    body.append("    copyto(o0, f0)" if m == 1 else "    add(f0, f1, o0)")
+    body += [f"    add(o0, f{i}, o0)" for i in range(2, m)]
+    for r, row in enumerate(rows, start=1):
+        o = f"o{r}"
+        if row is None:  # "0.0"
+            body.append(f"    {o}.fill(0.0)")
+            continue
+        factor, terms = row
+        for j, (neg, k, i) in enumerate(terms):
+            if j == 0:  # "-k * f[i]" is (−k)·f[i]; "-f[i]" is −f[i]
+                if k is None:
+                    body.append(f"    negative(f{i}, {o})" if neg else f"    copyto({o}, f{i})")
+                else:
+                    body.append(f"    multiply({const(-k if neg else k)}, f{i}, {o})")
+            elif k is None:
+                body.append(f"    {'subtract' if neg else 'add'}({o}, f{i}, {o})")
+            else:
+                body.append(f"    multiply({const(k)}, f{i}, tmp)")
+                body.append(f"    {'subtract' if neg else 'add'}({o}, tmp, {o})")
+        body.append(f"    multiply({const(factor)}, {o}, {o})")  # a_r·(...)
+    src = "def wrench_into(f, out, tmp):\n" + "\n".join(body) + "\n"
+    namespace = {
+        "add": np.add,
+        "subtract": np.subtract,
+        "multiply": np.multiply,
+        "negative": np.negative,
+        "copyto": np.copyto,
+        **{f"c{i}": c for i, c in enumerate(consts)},
+    }
+    exec(compile(src, "<core.dynamics wrench_into>", "exec"), namespace)  # built above from indices and names
+    fn = namespace["wrench_into"]
+    fn.source = src
+    return fn
 
 
 def hover_command(params) -> np.ndarray | float:

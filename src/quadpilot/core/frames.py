@@ -27,6 +27,57 @@ def euler_to_rotmat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.
     return out
 
 
+def euler_to_rotmat_rows(sin: np.ndarray, cos: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
+    """`euler_to_rotmat` in place: sin and cos (3, N) of roll, pitch and yaw, out (3, 3, N) with
+    out[j, i] = R_ji, tmp an (N,) scratch row; the same operations in the same order, so the same bits."""
+    sr, sp, sy = sin
+    cr, cp, cy = cos
+    np.multiply(cy, cp, out[0, 0])
+    np.multiply(cy, sp, out[0, 1])  # cy·sp, then ·sr − sy·cr
+    np.multiply(out[0, 1], cr, out[0, 2])  # cy·sp·cr + sy·sr
+    np.multiply(out[0, 1], sr, out[0, 1])
+    np.multiply(sy, cr, tmp)
+    np.subtract(out[0, 1], tmp, out[0, 1])
+    np.multiply(sy, sr, tmp)
+    np.add(out[0, 2], tmp, out[0, 2])
+    np.multiply(sy, cp, out[1, 0])
+    np.multiply(sy, sp, out[1, 1])  # sy·sp, then ·sr + cy·cr
+    np.multiply(out[1, 1], cr, out[1, 2])  # sy·sp·cr − cy·sr
+    np.multiply(out[1, 1], sr, out[1, 1])
+    np.multiply(cy, cr, tmp)
+    np.add(out[1, 1], tmp, out[1, 1])
+    np.multiply(cy, sr, tmp)
+    np.subtract(out[1, 2], tmp, out[1, 2])
+    np.negative(sp, out[2, 0])
+    np.multiply(cp, sr, out[2, 1])
+    np.multiply(cp, cr, out[2, 2])
+    return out
+
+
+def world_to_body_rows(rot: np.ndarray, v: np.ndarray, out, block: np.ndarray, tmp: np.ndarray):
+    """`world_to_body` in place: rot (3, 3, N) as `euler_to_rotmat_rows` writes it, v (3, N) world
+    vectors (each row may be strided), block and tmp (3, N) contiguous scratch in the rotation's
+    dtype. out: a (3, N) array, or pieces [(rows, view)] that together take the three components
+    (rows indexes the (3, N) result).
+
+    np.einsum("nji,nj->ni") sums the three products of each component in order onto a zero:
+    ((0 + R_0i·v_0) + R_1i·v_1) + R_2i·v_2, the zero turning a −0 product into +0; this does the
+    same (tests/core/test_inplace_equivalence.py compares the two bit for bit)."""
+    for i in range(3):  # row by row: a broadcast (N,) operand would make NumPy allocate a buffer
+        np.multiply(rot[0, i], v[0], block[i])
+    np.add(block, block.dtype.type(0.0), block)
+    for i in range(3):
+        np.multiply(rot[1, i], v[1], tmp[i])
+    np.add(block, tmp, block)
+    for i in range(3):
+        np.multiply(rot[2, i], v[2], tmp[i])
+    if isinstance(out, np.ndarray):
+        return np.add(block, tmp, out)
+    for rows, view in out:
+        np.add(block[rows], tmp[rows], view)
+    return out
+
+
 def rotmat_to_euler(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ZYX Euler angles (roll, pitch, yaw) of rotation matrices (..., 3, 3); pitch in [−π/2, π/2]."""
     roll = np.arctan2(rot[..., 2, 1], rot[..., 2, 2])

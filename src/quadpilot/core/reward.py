@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .state import PITCH, RATES, ROLL, VX, VY, R, X, Y, Z
+from .state import PITCH, POS, RATES, ROLL, ROLL_PITCH, VX, VY, YAW, R, X, Y, Z
 
 
 @dataclass(frozen=True)
@@ -146,3 +146,179 @@ def circle_reward(
         + cfg.radius_weight * gaussian(e_r * e_r, cfg.radius_sigma)
         + cfg.speed_weight * gaussian(e_v * e_v, cfg.speed_sigma)
     )
+
+
+def einsum_dot3_rows(a: np.ndarray, out: np.ndarray, squares: np.ndarray) -> np.ndarray:
+    """np.einsum("ij,ij->i", a.T, a.T) in place for rows a (3, N), into out (N,); squares (3, N) scratch.
+
+    The order matters for the last bit, and np.einsum sums the squares of a float32 triple in order,
+    (x² + y²) + z², and of a float64 one as (x² + z²) + y² (two SIMD lanes); this does the same
+    (tests/core/test_inplace_equivalence.py compares the two bit for bit)."""
+    np.multiply(a, a, squares)
+    x2, y2, z2 = squares
+    if a.dtype == np.float64:
+        np.add(x2, z2, out)
+        return np.add(out, y2, out)
+    np.add(x2, y2, out)
+    return np.add(out, z2, out)
+
+
+class StepTerms:
+    """One environment step's position error, termination, yaw errors and reward, computed in place
+    from state rows (12, N) into arrays allocated here once: `crashed`, `core.mission.yaw_errors`,
+    `hover_reward` or `circle_reward`, and the norm of the position error, as the environments use
+    them, with the same operations in the same order (so the same bits;
+    tests/core/test_inplace_equivalence.py checks each against its function). After `compute`:
+
+        pos_err (3, N) rows of state[:, POS] − target; dist_sq (N,) its squared norm; err (N,) its norm;
+        crash (N,) bool; rate (N,) |yaw rate|; head (N,) |heading error|; reward (N,).
+
+    They are overwritten by the next `compute`."""
+
+    def __init__(self, n: int, dtype) -> None:
+        self.n, self.dtype = int(n), np.dtype(dtype)
+        rows = lambda k: np.empty((k, self.n), self.dtype)  # noqa: E731
+        self.pos_err, self.squares = rows(3), rows(3)
+        self.tilt = rows(2)  # |roll|, |pitch|
+        self.dist_sq, self.err, self.rate, self.head, self.reward = rows(5)
+        self.rates_sq, self.over, self.g, self.t, self.u = rows(5)
+        self.crash, self.flag, self.flags = np.empty(self.n, bool), np.empty(self.n, bool), np.empty((2, self.n), bool)
+        self._consts: tuple | None = None  # (cfg, its numbers in the state dtype)
+        self._state_views: tuple = (None, None)  # (state rows, the views of them read), made once
+
+    def _numbers(self, cfg: RewardConfig) -> dict:
+        """cfg's numbers as the arithmetic below meets them: Python floats cast to the state dtype
+        (NEP 50), once per configuration instead of at every ufunc call."""
+        if self._consts is None or self._consts[0] is not cfg:
+            t = self.dtype.type
+            sq = lambda sigma: t(sigma * sigma)  # noqa: E731
+            self._consts = (
+                cfg,
+                {
+                    "coarse_w": t(cfg.pos_coarse_weight),
+                    "coarse_s2": sq(cfg.pos_coarse_sigma),
+                    "fine_w": t(cfg.pos_fine_weight),
+                    "fine_s2": sq(cfg.pos_fine_sigma),
+                    "rate_w": t(cfg.rate_weight),
+                    "tilt_w": t(cfg.tilt_weight),
+                    "soft": t(math.radians(cfg.tilt_soft_deg)),
+                    "heading_w": t(cfg.heading_weight),
+                    "heading_s2": sq(cfg.heading_sigma),
+                    "yaw_rate_w": t(cfg.yaw_rate_weight),
+                    "penalty": t(cfg.crash_penalty),
+                    "radius_w": t(cfg.radius_weight),
+                    "radius_s2": sq(cfg.radius_sigma),
+                    "speed_w": t(cfg.speed_weight),
+                    "speed_s2": sq(cfg.speed_sigma),
+                    "two_pi": t(2.0 * math.pi),
+                    "zero": t(0.0),
+                    "rho_min": t(1e-6),
+                },
+            )
+        return self._consts[1]
+
+    def compute(
+        self,
+        s: np.ndarray,
+        target: np.ndarray,
+        heading: np.ndarray,
+        cfg: RewardConfig,
+        pay_heading: bool = True,
+        circle: tuple | None = None,
+        pos_err: np.ndarray | None = None,
+    ) -> None:
+        """s (12, N) true state rows; target (N, 3) m; heading (N,) the commanded heading in rad;
+        pay_heading: the reward has the heading term (False: version 1); circle (center (3,), radius,
+        speed) for the circle reward, None for hover's. pos_err: the rows s[POS] − target.T if the
+        caller has them (an `ObservationBuilder` of the true state does), else None."""
+        mul, add, sub = np.multiply, np.add, np.subtract
+        k = self._numbers(cfg)
+        if self._state_views[0] is not s:
+            self._state_views = (s, (s[POS], s[ROLL_PITCH], s[RATES], s[X], s[Y], s[Z], s[VX], s[VY], s[YAW], s[R]))
+        pos, tilt_rows, rates, x, y, z, vx, vy, yaw, r_rate = self._state_views[1]
+        d2, crash, flag, t, g = self.dist_sq, self.crash, self.flag, self.t, self.g
+        if pos_err is None:
+            e, target = self.pos_err, np.asarray(target)
+            for i in range(3):  # by column: a transposed (3, N) operand would make NumPy allocate a buffer
+                sub(pos[i], target[:, i], e[i])
+        else:
+            e = pos_err
+        einsum_dot3_rows(e, d2, self.squares)
+        np.sqrt(d2, self.err)
+        tilt, flags = self.tilt, self.flags
+        np.abs(tilt_rows, tilt)
+        # crashed: (z < 0) | (|roll| > max_tilt) | (|pitch| > max_tilt) | ~(dist_sq <= max_distance²)
+        np.less(z, 0.0, crash)
+        np.greater(tilt, cfg.max_tilt, flags)
+        np.logical_or(crash, flags[0], crash)
+        np.logical_or(crash, flags[1], crash)
+        np.less_equal(d2, cfg.max_distance**2, flag)
+        np.logical_not(flag, flag)
+        np.logical_or(crash, flag, crash)
+        # core.mission.yaw_errors: |r|, and d = |ψ − ψ_cmd| wrapped as min(d, 2π − d)
+        np.abs(r_rate, self.rate)
+        sub(yaw, heading, t)
+        np.abs(t, t)
+        sub(k["two_pi"], t, self.head)
+        np.minimum(t, self.head, out=self.head)
+        # hover_reward
+        r = self.reward
+        einsum_dot3_rows(rates, self.rates_sq, self.squares)
+        over = self.over
+        np.maximum(tilt[0], tilt[1], out=over)
+        sub(over, k["soft"], over)
+        np.maximum(over, k["zero"], out=over)
+        neg_d2 = self.u  # gaussian: exp(−d²/σ²), the −d² shared by both widths
+        np.negative(d2, neg_d2)
+        np.divide(neg_d2, k["coarse_s2"], g)
+        np.exp(g, g)
+        mul(k["coarse_w"], g, r)
+        np.divide(neg_d2, k["fine_s2"], g)
+        np.exp(g, g)
+        mul(k["fine_w"], g, g)
+        add(r, g, r)
+        mul(k["rate_w"], self.rates_sq, g)
+        sub(r, g, r)
+        mul(k["tilt_w"], over, g)
+        mul(g, over, g)
+        sub(r, g, r)
+        if pay_heading:
+            mul(self.head, self.head, t)
+            _gaussian(t, k["heading_s2"], g)
+            mul(k["heading_w"], g, g)
+            add(r, g, r)
+            mul(k["yaw_rate_w"], r_rate, g)
+            mul(g, r_rate, g)
+            sub(r, g, r)
+        sub(r, k["penalty"], r, where=crash)  # np.where(crash, r − penalty, r)
+        if circle is not None:  # circle_reward: + radius and speed Gaussians on circle_errors
+            center, radius, speed = circle
+            dx, dy, u = self.over, self.t, self.u  # `over` is spent
+            sub(x, center[..., 0], dx)
+            sub(y, center[..., 1], dy)
+            mul(dx, dx, g)  # rho = √(dx·dx + dy·dy)
+            mul(dy, dy, u)
+            add(g, u, g)
+            np.sqrt(g, g)
+            mul(dx, vy, dx)  # v_tan = (dx·vy − dy·vx) / max(rho, 1e-6)
+            mul(dy, vx, dy)
+            sub(dx, dy, dx)
+            np.maximum(g, k["rho_min"], out=u)
+            np.divide(dx, u, dx)
+            sub(g, self.dtype.type(radius), g)  # e_r = rho − radius
+            sub(dx, self.dtype.type(speed), dx)  # e_v = v_tan − speed
+            mul(g, g, u)
+            _gaussian(u, k["radius_s2"], u)
+            mul(k["radius_w"], u, u)
+            add(r, u, r)
+            mul(dx, dx, u)
+            _gaussian(u, k["speed_s2"], u)
+            mul(k["speed_w"], u, u)
+            add(r, u, r)
+
+
+def _gaussian(err_sq: np.ndarray, sigma_sq, out: np.ndarray) -> np.ndarray:
+    """`gaussian` into out (which may be err_sq itself): exp(−err_sq/σ²), σ² given."""
+    np.negative(err_sq, out)
+    np.divide(out, sigma_sq, out)
+    return np.exp(out, out)

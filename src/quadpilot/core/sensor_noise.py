@@ -279,6 +279,8 @@ class SensorNoiseState:
         """(N, 15): gyro bias, accel bias, position error, velocity error, attitude error (3 each)."""
         self.white = np.zeros((self.n, 12))
         """(N, 12): this step's white noise: gyro, accel, position, velocity (3 each)."""
+        self._draw: np.ndarray | None = None  # (N, 27) standard normals of a step, made at the first
+        self._sum: np.ndarray | None = None  # (2, N) float64 scratch of `estimate_rows`
 
     # --- processes ---------------------------------------------------------------------------
     def reset(self, idx=None) -> None:
@@ -292,10 +294,19 @@ class SensorNoiseState:
         self.white[rows] = self._white_std * z[:, 15:]
 
     def step(self) -> None:
-        """Advance every drone's processes by dt and draw this step's white noise."""
-        z = self.rng.standard_normal((self.n, 27))
+        """Advance every drone's processes by dt and draw this step's white noise. The draw fills
+        one (N, 27) array kept from step to step (`Generator.standard_normal(out=)` draws what
+        `standard_normal((N, 27))` draws) and the updates are in place, in the same order as the
+        allocating code had them (NumPy still buffers the products of a per-column constant with
+        the (N, 15) and (N, 12) blocks)."""
+        z = self._draw
+        if z is None:
+            z = self._draw = np.empty((self.n, 27))
+        self.rng.standard_normal(out=z)
         self.slow *= self._phi
-        self.slow += self._kick * z[:, :15]
+        kicks = z[:, :15]
+        np.multiply(self._kick, kicks, out=kicks)  # slow += kick·z
+        self.slow += kicks
         np.multiply(self._white_std, z[:, 15:], out=self.white)
 
     # --- measurements ------------------------------------------------------------------------
@@ -318,6 +329,35 @@ class SensorNoiseState:
         out[:, VEL] += self.slow[s, 9:12] + self.white[s, 9:12]
         out[:, ATT] += self.slow[s, 12:15]
         out[:, RATES] = self.gyro(state[:, RATES], idx)
+        return out
+
+    def estimate_rows(self, s: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """`estimate` of every drone in place: s (12, N) true state rows, out (12, N) rows of the
+        estimate in the same dtype. The same operations as `estimate` in the same order (each error
+        summed in float64, then added to the state and cast to its dtype, as `+=` on the copy does;
+        the rates ((true + bias) + white) in float64, then cast), so the same bits."""
+        if self._sum is None:
+            self._sum = np.empty((2, self.n))
+        err, x = self._sum
+        slow, white, add, copy = self.slow, self.white, np.add, np.copyto
+
+        def plus(row: int, err: np.ndarray) -> None:  # out[row] = s[row] + err, in float64, cast
+            copy(x, s[row])
+            add(x, err, x)
+            copy(out[row], x, casting="same_kind")
+
+        # column by column, and float32 widened by copies: a transposed (3, N) operand or a mixed-type
+        # ufunc would make NumPy allocate a buffer
+        for i in range(3):
+            add(slow[:, 6 + i], white[:, 6 + i], err)  # out[:, POS] += slow[6:9] + white[6:9]
+            plus(POS.start + i, err)
+            add(slow[:, 9 + i], white[:, 9 + i], err)  # out[:, VEL] += slow[9:12] + white[9:12]
+            plus(VEL.start + i, err)
+            plus(ATT.start + i, slow[:, 12 + i])  # out[:, ATT] += slow[12:15]
+            copy(x, s[RATES.start + i])  # gyro: rates + slow[0:3] + white[0:3]
+            add(x, slow[:, i], x)
+            add(x, white[:, i], x)
+            copy(out[RATES.start + i], x, casting="same_kind")
         return out
 
     @property

@@ -19,6 +19,7 @@ from quadpilot.core.state import ATT, PITCH, RATES, ROLL, VEL, VX, VY, VZ, YAW, 
 from quadpilot.link import wire
 
 from . import sensors
+from .single_step import SingleStep
 
 _HALF_PI = 0.5 * math.pi
 _MOTORS_OFF = np.zeros(1, bool)  # core.dynamics.step's `armed` for the batch of one, motors off
@@ -81,10 +82,12 @@ class Plant:
         self.vehicle = vehicle
         self.params = ParamBatch.from_preset(vehicle, 1)
         self.dt = dt
+        self._single = SingleStep(self.params, dt)  # core.dynamics.step for one drone, same bits
         self.wind = np.asarray(wind, np.float64)
         # F = drag·(wind − v): core.dynamics applies −drag·v itself (params.drag) and takes the
         # drag·wind part as its external force, as the training environments' wind does.
         self._wind_force = vehicle.drag * self.wind  # N, world ENU
+        self._windy = bool(self._wind_force.any())
         # Gusts: each axis a first-order Gauss-Markov (Ornstein-Uhlenbeck) velocity with standard
         # deviation gust_std and correlation time gust_tau_s, discretised exactly per step (the
         # first-order shaping filter behind the Dryden model's low-frequency part, MIL-F-8785C).
@@ -136,21 +139,25 @@ class Plant:
         command = np.asarray(command, np.float64)
         if armed is None:
             armed = bool(command.any())
-        force = self._wind_force
+        force = self._wind_force if self._windy else None
         if self.gust_std > 0:
             self.gust = self._gust_decay * self.gust + self._gust_kick * self._rng.normal(size=3)
             force = self.vehicle.drag * self.air
+            force = force if force.any() else None
         before = self.state
-        s, w = dynamics.step(
-            before[None],
-            self.rotor[None],
-            command[None],
-            self.params,
-            self.dt,
-            force=force[None] if force.any() else None,
-            armed=None if armed else _MOTORS_OFF,
-        )
-        self.state, self.rotor = s[0], w[0]
+        out = self._single.step(before, self.rotor, command, force, armed)  # the same bits, in scalar arithmetic
+        if out is None:  # a step the scalar code declines (see `single_step`): core.dynamics' own
+            s, w = dynamics.step(
+                before[None],
+                self.rotor[None],
+                command[None],
+                self.params,
+                self.dt,
+                force=None if force is None else force[None],
+                armed=None if armed else _MOTORS_OFF,
+            )
+            out = s[0], w[0]
+        self.state, self.rotor = out
         if before[Z] >= GROUND_Z > self.state[Z]:  # the free step would cross the plane downwards
             self._touch_ground(before, self.state)
         elif self.on_ground:
@@ -212,14 +219,16 @@ class Plant:
     @property
     def thrust_n(self) -> float:
         """N, total rotor thrust at the current rotor speeds."""
-        return float(self._f_max * np.sum(self.rotor * self.rotor))
+        return float(self._f_max * np.add.reduce(self.rotor * self.rotor))  # np.sum's reduction, without its wrapper
 
-    def specific_force_flu(self) -> np.ndarray:
+    def specific_force_flu(self, rot: np.ndarray | None = None) -> np.ndarray:
         """m/s², body FLU, what an ideal accelerometer reads now (with the ground's force while the
-        vehicle is on it: (0, 0, +g) at rest there, as a real IMU reads)."""
-        return sensors.specific_force_flu(
-            self.state, self.thrust_n, self.vehicle.mass, self.vehicle.drag, self.air, self._contact_acc
-        )
+        vehicle is on it: (0, 0, +g) at rest there, as a real IMU reads). `rot`: the state's body →
+        world rotation, if known (`sensors.rotation`)."""
+        v = self.vehicle
+        if not v.drag and self._contact_acc is None:  # `sensors.specific_force_flu` with nothing but thrust
+            return np.array([0.0, 0.0, self.thrust_n / v.mass])
+        return sensors.specific_force_flu(self.state, self.thrust_n, v.mass, v.drag, self.air, self._contact_acc, rot)
 
 
 def resting_on_ground(state: np.ndarray) -> bool:

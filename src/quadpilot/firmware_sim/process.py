@@ -28,7 +28,7 @@ import numpy as np
 
 from quadpilot.core import dynamics
 from quadpilot.core.reward import RewardConfig, crashed
-from quadpilot.core.state import POS
+from quadpilot.core.state import PITCH, POS, ROLL, X, Y, Z
 from quadpilot.link.transport import Address, Listener, PeerClosed
 
 from .config import SimConfig
@@ -41,6 +41,23 @@ log = logging.getLogger(__name__)
 
 POLL_S = 0.05
 """s, longest a wait goes without looking at `stop()`."""
+
+
+def crashed_one(state: np.ndarray, target: np.ndarray, reward: RewardConfig) -> bool:
+    """`core.reward.crashed` for one 12-state (ENU) and its target, in scalar arithmetic: it runs
+    every step, and the batched function is mostly NumPy's per-call overhead on a batch of one. The same decision: the
+    comparisons are the same, and the squared distance, whose sum may round one ulp apart from
+    `crashed`'s einsum, is handed to `crashed` itself when it is that close to the limit."""
+    values, (tx, ty, tz) = state.tolist(), target.tolist()  # plain floats: numpy's scalars cost more
+    max_tilt = reward.max_tilt
+    if values[Z] < 0.0 or abs(values[ROLL]) > max_tilt or abs(values[PITCH]) > max_tilt:
+        return True
+    e0, e1, e2 = values[X] - tx, values[Y] - ty, values[Z] - tz
+    d2 = e0 * e0 + e1 * e1 + e2 * e2
+    limit = reward.max_distance**2
+    if abs(d2 - limit) <= 1e-9 * limit:  # at the edge of the flight area: to the last bit, as training judges
+        return bool(crashed(state[None], state[None, POS] - target, reward)[0])
+    return not d2 <= limit  # NaN counts as out
 
 
 class Simulator:
@@ -200,17 +217,16 @@ class Simulator:
         self.stats.steps += 1
         self._io.send_step(link, plant, n, self._sensors)
         if ep.first_crash_step is None:
-            s = plant.state[None]
             if self.cfg.start == "air":
                 # The ground holds the drone at z = 0, so `crashed`'s "below ground" never fires
                 # here: a flight started in the air that touches the ground has crashed (the event
                 # z < 0 was before the ground plane).
-                crash = plant.on_ground or crashed(s, s[:, dynamics.POS] - self._target, self._reward)[0]
+                crash = plant.on_ground or crashed_one(plant.state, self._target, self._reward)
             else:
                 # A landed start is a commanded flight: it rests on the ground by design and goes
                 # wherever the ground station sends it, so neither the ground nor the flight area
                 # around the episode's target applies; a tilt beyond the limit still does.
-                roll, pitch, _ = s[0, dynamics.ATT]
+                roll, pitch = float(plant.state[ROLL]), float(plant.state[PITCH])
                 crash = max(abs(roll), abs(pitch)) > self._reward.max_tilt
             if crash:
                 ep.first_crash_step = n

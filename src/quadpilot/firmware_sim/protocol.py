@@ -41,6 +41,7 @@ from .config import SimConfig
 from .plant import Plant
 from .records import EpisodeTally, SimStats
 from .sensors import Sensors
+from .sensors import rotation as body_to_world
 
 log = logging.getLogger(__name__)
 
@@ -58,20 +59,23 @@ class Protocol:
         self.stats = stats
 
     def send_step(self, link, plant: Plant, n: int, sensors: Sensors) -> None:
-        """The messages of step `n` (see the module doc), then one flush."""
+        """The messages of step `n` (see the module doc), then one flush. Each goes to pymavlink as
+        one positional call (`link.wire`'s `*_args`: the fields in the message's order)."""
         cfg = self.cfg
+        mav = link.mav
         t_us = TIME_ORIGIN_US + round(n * cfg.dt * 1e6)
         state = plant.state
+        values = state.tolist()  # plain floats for the scalar field arithmetic
         if n % cfg.gps_every == 0:
-            link.mav.hil_gps_send(**wire.hil_gps_fields(state, cfg.home, t_us))
-        accel = plant.specific_force_flu()
-        link.mav.hil_state_quaternion_send(**wire.hil_state_quaternion_fields(state, cfg.home, t_us, accel))
-        r = sensors.read(state, accel, n)
+            mav.hil_gps_send(*wire.hil_gps_args(values, cfg.home, t_us))
+        rot = body_to_world(state)  # once for the accelerometer and the magnetometer
+        accel = plant.specific_force_flu(rot)
+        mav.hil_state_quaternion_send(*wire.hil_state_quaternion_args(values, cfg.home, t_us, accel.tolist()))
+        r = sensors.read(state, accel, n, rot)
         if r.estimate is not None:
-            link.mav.odometry_send(**wire.odometry_fields(r.estimate, t_us, *sensors.variances))
-        link.mav.hil_sensor_send(
-            **wire.hil_sensor_fields(t_us, r.gyro, r.accel, r.mag, r.pressure_hpa, r.alt_m, r.temperature_c)
-        )
+            mav.odometry_send(**wire.odometry_fields(r.estimate, t_us, *sensors.variances))
+        sensor = wire.hil_sensor_args(t_us, r.gyro, r.accel, r.mag, r.pressure_hpa, r.alt_m, r.temperature_c)
+        mav.hil_sensor_send(*sensor)
         link.flush()
 
     def receive(self, link, timeout: float, ep: EpisodeTally | None):

@@ -8,6 +8,7 @@ turns them into HIL_SENSOR's FRD fields.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -15,6 +16,8 @@ import numpy as np
 from quadpilot.core.frames import euler_to_rotmat
 from quadpilot.core.sensor_noise import ADIS16448, SensorNoise, SensorNoiseState
 from quadpilot.core.state import PITCH, RATES, ROLL, VEL, YAW, Z
+
+from .single_step import TRIG_AGREES
 
 MAG_NED_GAUSS = (0.214, 0.012, 0.433)
 """gauss, Earth's field (north, east, down) at PX4's default SITL home (Zürich, 47.40° N 8.55° E):
@@ -64,30 +67,56 @@ def isa_temperature_c(alt_msl_m: float) -> float:
     return ISA_T0_K - ISA_LAPSE_K_PER_M * _isa_altitude(alt_msl_m) - 273.15
 
 
-def world_to_body(state: np.ndarray, v_world) -> np.ndarray:
-    """A world ENU vector (3,) in the body FLU frame of a 12-state: Rᵀ·v."""
-    r = euler_to_rotmat(state[ROLL], state[PITCH], state[YAW])
+def rotation(state: np.ndarray) -> np.ndarray:
+    """The body → world rotation (3, 3) of a 12-state: `core.frames.euler_to_rotmat` of its angles,
+    entry for entry in scalar arithmetic (the same bits, with `single_step.TRIG_AGREES`; else that
+    function itself), without NumPy's per-call overhead on one state: this runs every simulation step."""
+    roll, pitch, yaw = float(state[ROLL]), float(state[PITCH]), float(state[YAW])
+    if not (TRIG_AGREES and math.isfinite(roll) and math.isfinite(pitch) and math.isfinite(yaw)):
+        return euler_to_rotmat(roll, pitch, yaw)
+    sr, cr = math.sin(roll), math.cos(roll)
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    sy, cy = math.sin(yaw), math.cos(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def world_to_body(state: np.ndarray, v_world, rot: np.ndarray | None = None) -> np.ndarray:
+    """A world ENU vector (3,) in the body FLU frame of a 12-state: Rᵀ·v (`rot`: its R, if known)."""
+    r = rotation(state) if rot is None else rot
     return r.T @ np.asarray(v_world, np.float64)
 
 
-def magnetometer_flu(state: np.ndarray, field_ned=MAG_NED_GAUSS) -> np.ndarray:
-    """The Earth field (gauss) measured in the body FLU frame of a 12-state."""
-    n, e, d = field_ned
-    return world_to_body(state, (e, n, -d))  # NED → ENU
+_MAG_ENU = np.array((MAG_NED_GAUSS[1], MAG_NED_GAUSS[0], -MAG_NED_GAUSS[2]))  # NED → ENU, made once
+
+
+def magnetometer_flu(state: np.ndarray, field_ned=MAG_NED_GAUSS, rot: np.ndarray | None = None) -> np.ndarray:
+    """The Earth field (gauss) measured in the body FLU frame of a 12-state (`rot`: its R, if known)."""
+    if field_ned is MAG_NED_GAUSS:
+        v = _MAG_ENU
+    else:
+        n, e, d = field_ned
+        v = (e, n, -d)  # NED → ENU
+    return world_to_body(state, v, rot)
 
 
 def specific_force_flu(
-    state: np.ndarray, thrust_n: float, mass: float, drag: float, wind_enu, contact_enu=None
+    state: np.ndarray, thrust_n: float, mass: float, drag: float, wind_enu, contact_enu=None, rot=None
 ) -> np.ndarray:
     """What an accelerometer measures, m/s² in body FLU: the non-gravitational force over mass.
     Rotor thrust acts along body +z; air drag, drag·(wind − v), acts in the world frame, and so does
     the ground's force over mass, `contact_enu` (m/s², None: not touching it). Hovering, or at rest
-    on the ground, it is (0, 0, +g); in free fall, zero."""
+    on the ground, it is (0, 0, +g); in free fall, zero. `rot`: the state's R, if known."""
     f = np.array([0.0, 0.0, thrust_n / mass])
     if drag:
-        f += world_to_body(state, drag * (np.asarray(wind_enu, np.float64) - state[VEL]) / mass)
+        f += world_to_body(state, drag * (np.asarray(wind_enu, np.float64) - state[VEL]) / mass, rot)
     if contact_enu is not None:
-        f += world_to_body(state, contact_enu)
+        f += world_to_body(state, contact_enu, rot)
     return f
 
 
@@ -129,8 +158,9 @@ class Sensors:
             self.noise.reset()
             self.variances = estimate_variances(spec, dt) if spec.estimator is not None else None
 
-    def read(self, state: np.ndarray, specific_force: np.ndarray, n: int) -> Reading:
-        """Step `n`'s reading of the 12-state `state` whose ideal accelerometer reads `specific_force`."""
+    def read(self, state: np.ndarray, specific_force: np.ndarray, n: int, rot: np.ndarray | None = None) -> Reading:
+        """Step `n`'s reading of the 12-state `state` whose ideal accelerometer reads `specific_force`
+        (`rot`: the state's body → world rotation, if known: `rotation(state)`)."""
         gyro, accel, estimate = state[RATES].copy(), specific_force, None
         noise = self.noise
         if noise is not None:  # core.sensor_noise, as in training: advance one dt, then measure
@@ -142,7 +172,7 @@ class Sensors:
                 estimate = noise.estimate(state[None])[0]
         alt = self.home_alt_m + float(state[Z])
         return Reading(
-            gyro, accel, magnetometer_flu(state), isa_pressure_hpa(alt), alt, isa_temperature_c(alt), estimate
+            gyro, accel, magnetometer_flu(state, rot=rot), isa_pressure_hpa(alt), alt, isa_temperature_c(alt), estimate
         )
 
 

@@ -18,6 +18,7 @@ azimuthal-equidistant projection by far less than the 1e-7° quantum).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -43,11 +44,12 @@ class Home:
     alt_m: float = 488.0
     """m above mean sea level, of the local frame's z = 0."""
 
-    @property
+    # cached: every state message sent or read uses them (a frozen dataclass has no other state)
+    @functools.cached_property
     def metres_per_deg_lat(self) -> float:
         return math.radians(1.0) * EARTH_RADIUS_M
 
-    @property
+    @functools.cached_property
     def metres_per_deg_lon(self) -> float:
         return math.radians(1.0) * EARTH_RADIUS_M * math.cos(math.radians(self.lat_deg))
 

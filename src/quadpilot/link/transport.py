@@ -262,21 +262,31 @@ class Link:
         return self._codec.signing
 
     def recv(self, timeout: float = 0.0):
-        """The next message (possibly a BAD_DATA), or None if none arrived within `timeout` s."""
+        """The next message (possibly a BAD_DATA), or None if none arrived within `timeout` s.
+
+        With a timeout it waits for the socket first and then reads: in lockstep the peer's answer
+        is never there yet when the last message has been handled, and reading first would cost a
+        system call (and an exception) that finds nothing, every step."""
         if self._pending:
             return self._pending.popleft()
-        deadline = None
+        if timeout <= 0:
+            self._fill()
+            return self._pending.popleft() if self._pending else None
+        deadline = time.monotonic() + timeout
+        left = timeout
         while True:
+            try:
+                ready, _, _ = select.select([self.port], [], [], left)
+            except (ValueError, OSError):  # a closed socket: reading says how (PeerClosed for TCP)
+                self._fill()
+                return self._pending.popleft() if self._pending else None
+            if not ready:
+                return None
             self._fill()
             if self._pending:
                 return self._pending.popleft()
-            if deadline is None:
-                deadline = time.monotonic() + timeout
             left = deadline - time.monotonic()
             if left <= 0:
-                return None
-            ready, _, _ = select.select([self.port], [], [], left)
-            if not ready:
                 return None
 
     def _parse(self, data: bytes) -> None:

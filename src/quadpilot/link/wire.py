@@ -124,6 +124,43 @@ def _saturating(message_class):
     return decorate
 
 
+def _saturating_args(message_class):
+    """`_saturating` for an `*_args` function of `message_class`, whose result is the message's fields
+    as a list in the order of its definition (the order of pymavlink's `<message>_encode` and
+    `<message>_send` arguments): the same bounds, applied by position. The messages of every
+    simulation step are built this way (a list, one call to pymavlink), and their `*_fields` dicts
+    from the same function (`_fields_of`)."""
+    limits = tuple((i, *_INT_RANGE[kind]) for i, kind in enumerate(message_class.fieldtypes) if kind in _INT_RANGE)
+
+    def decorate(args_of):
+        @functools.wraps(args_of)
+        def saturated(*args, **kwargs) -> list:
+            out = args_of(*args, **kwargs)
+            for i, lo, hi in limits:
+                v = out[i]
+                if v < lo:
+                    out[i] = lo
+                elif v > hi:
+                    out[i] = hi
+            return out
+
+        return saturated
+
+    return decorate
+
+
+def _fields_of(message_class, args_of, doc: str):
+    """The keyword-argument form of an `*_args` function: {field name: value}."""
+    names = message_class.fieldnames
+
+    @functools.wraps(args_of)
+    def fields(*args, **kwargs) -> dict:
+        return dict(zip(names, args_of(*args, **kwargs), strict=True))
+
+    fields.__doc__ = doc
+    return fields
+
+
 class BadState(ValueError):
     """A received state message whose values cannot be a vehicle's state; `reason` names the check
     (non_finite, quaternion_not_unit, out_of_range, frame), for counting drops by reason."""
@@ -161,11 +198,9 @@ def _cm(v: float) -> int:
     return round(v * 100.0)
 
 
-@_saturating(mavlink2.MAVLink_hil_state_quaternion_message)
-def hil_state_quaternion_fields(
-    state: np.ndarray, home: Home, time_usec: int, accel_flu: np.ndarray | None = None
-) -> dict:
-    """Keyword arguments of `mav.hil_state_quaternion_send` for one 12-state (ENU/FLU, SI)."""
+@_saturating_args(mavlink2.MAVLink_hil_state_quaternion_message)
+def hil_state_quaternion_args(state, home: Home, time_usec: int, accel_flu=None) -> list:
+    """Arguments of `mav.hil_state_quaternion_send` (in order) for one 12-state (ENU/FLU, SI)."""
     x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r = (float(v) for v in state)
     lat, lon, alt = local_to_geodetic((x, y, z), home)
     if accel_flu is None:
@@ -173,24 +208,31 @@ def hil_state_quaternion_fields(
     else:
         a0, a1, a2 = (float(v) for v in accel_flu)
         acc = (a0 / G_MG, -a1 / G_MG, -a2 / G_MG)
-    return {
-        "time_usec": int(time_usec),
-        "attitude_quaternion": list(ned_frd_quaternion(roll, pitch, yaw)),
-        "rollspeed": p,
-        "pitchspeed": -q,
-        "yawspeed": -r,
-        "lat": lat,
-        "lon": lon,
-        "alt": alt,
-        "vx": _cm(vy),  # NED north = ENU y
-        "vy": _cm(vx),
-        "vz": _cm(-vz),
-        "ind_airspeed": 0,
-        "true_airspeed": 0,
-        "xacc": round(acc[0]),
-        "yacc": round(acc[1]),
-        "zacc": round(acc[2]),
-    }
+    return [
+        int(time_usec),
+        list(ned_frd_quaternion(roll, pitch, yaw)),  # attitude_quaternion
+        p,  # rollspeed
+        -q,  # pitchspeed
+        -r,  # yawspeed
+        lat,
+        lon,
+        alt,
+        _cm(vy),  # vx: NED north = ENU y
+        _cm(vx),  # vy
+        _cm(-vz),  # vz
+        0,  # ind_airspeed
+        0,  # true_airspeed
+        round(acc[0]),  # xacc
+        round(acc[1]),  # yacc
+        round(acc[2]),  # zacc
+    ]
+
+
+hil_state_quaternion_fields = _fields_of(
+    mavlink2.MAVLink_hil_state_quaternion_message,
+    hil_state_quaternion_args,
+    "Keyword arguments of `mav.hil_state_quaternion_send` for one 12-state (ENU/FLU, SI).",
+)
 
 
 def state_from_hil_state_quaternion(msg, home: Home) -> np.ndarray:
@@ -227,36 +269,46 @@ def state_from_hil_state_quaternion(msg, home: Home) -> np.ndarray:
     )
 
 
-@_saturating(mavlink2.MAVLink_hil_sensor_message)
-def hil_sensor_fields(
+@_saturating_args(mavlink2.MAVLink_hil_sensor_message)
+def hil_sensor_args(
     time_usec: int,
-    gyro_flu: np.ndarray,
-    accel_flu: np.ndarray,
-    mag_flu: np.ndarray,
+    gyro_flu,
+    accel_flu,
+    mag_flu,
     abs_pressure_hpa: float,
     pressure_alt_m: float,
     temperature_c: float = 15.0,
-) -> dict:
-    """Keyword arguments of `mav.hil_sensor_send`; vectors in body FLU, converted to FRD here."""
-    g, a, m = flu_to_frd(gyro_flu), flu_to_frd(accel_flu), flu_to_frd(mag_flu)
-    return {
-        "time_usec": int(time_usec),
-        "xacc": float(a[0]),
-        "yacc": float(a[1]),
-        "zacc": float(a[2]),
-        "xgyro": float(g[0]),
-        "ygyro": float(g[1]),
-        "zgyro": float(g[2]),
-        "xmag": float(m[0]),
-        "ymag": float(m[1]),
-        "zmag": float(m[2]),
-        "abs_pressure": float(abs_pressure_hpa),
-        "diff_pressure": 0.0,
-        "pressure_alt": float(pressure_alt_m),
-        "temperature": float(temperature_c),
-        "fields_updated": 0x1FFF,  # acc, gyro, mag, baro, temperature: all updated this step
-        "id": 0,
-    }
+) -> list:
+    """Arguments of `mav.hil_sensor_send` (in order); vectors in body FLU, converted to FRD here
+    (y and z times −1, as `frames.flu_to_frd`)."""
+    g0, g1, g2 = (float(v) for v in gyro_flu)
+    a0, a1, a2 = (float(v) for v in accel_flu)
+    m0, m1, m2 = (float(v) for v in mag_flu)
+    return [
+        int(time_usec),
+        a0,  # xacc
+        a1 * -1.0,  # yacc
+        a2 * -1.0,  # zacc
+        g0,  # xgyro
+        g1 * -1.0,  # ygyro
+        g2 * -1.0,  # zgyro
+        m0,  # xmag
+        m1 * -1.0,  # ymag
+        m2 * -1.0,  # zmag
+        float(abs_pressure_hpa),
+        0.0,  # diff_pressure
+        float(pressure_alt_m),
+        float(temperature_c),
+        0x1FFF,  # fields_updated: acc, gyro, mag, baro, temperature: all updated this step
+        0,  # id
+    ]
+
+
+hil_sensor_fields = _fields_of(
+    mavlink2.MAVLink_hil_sensor_message,
+    hil_sensor_args,
+    "Keyword arguments of `mav.hil_sensor_send`; vectors in body FLU, converted to FRD here.",
+)
 
 
 def gyro_from_hil_sensor(msg) -> np.ndarray:
@@ -264,29 +316,42 @@ def gyro_from_hil_sensor(msg) -> np.ndarray:
     return frd_to_flu(np.array([msg.xgyro, msg.ygyro, msg.zgyro], np.float64))
 
 
-@_saturating(mavlink2.MAVLink_hil_gps_message)
-def hil_gps_fields(state: np.ndarray, home: Home, time_usec: int) -> dict:
-    """Keyword arguments of `mav.hil_gps_send` (3-D fix, 10 satellites, eph/epv 0.3 m)."""
+def gyro_values_from_hil_sensor(msg) -> tuple[float, float, float]:
+    """`gyro_from_hil_sensor` as three floats, the same bits (y and z times −1, as `frd_to_flu`)."""
+    return float(msg.xgyro) * 1.0, float(msg.ygyro) * -1.0, float(msg.zgyro) * -1.0
+
+
+@_saturating_args(mavlink2.MAVLink_hil_gps_message)
+def hil_gps_args(state, home: Home, time_usec: int) -> list:
+    """Arguments of `mav.hil_gps_send` (in order): 3-D fix, 10 satellites, eph/epv 0.3 m."""
     lat, lon, alt = local_to_geodetic(state[POS], home)
-    vn, ve, vd = (float(v) for v in enu_to_ned(state[VEL]))
+    vx, vy, vz = (float(v) for v in state[VEL])
+    vn, ve, vd = vy, vx, vz * -1.0  # ENU → NED, as `frames.enu_to_ned`
     course = math.degrees(math.atan2(ve, vn)) % 360.0
-    return {
-        "time_usec": int(time_usec),
-        "fix_type": 3,
-        "lat": lat,
-        "lon": lon,
-        "alt": alt,
-        "eph": 30,
-        "epv": 30,
-        "vel": min(65534, round(math.hypot(vn, ve) * 100.0)),  # UINT16_MAX means unknown
-        "vn": _cm(vn),
-        "ve": _cm(ve),
-        "vd": _cm(vd),
-        "cog": round(course * 100.0) % 36000,
-        "satellites_visible": 10,
-        "id": 0,
-        "yaw": 0,  # 0 = not available
-    }
+    return [
+        int(time_usec),
+        3,  # fix_type
+        lat,
+        lon,
+        alt,
+        30,  # eph
+        30,  # epv
+        min(65534, round(math.hypot(vn, ve) * 100.0)),  # vel; UINT16_MAX means unknown
+        _cm(vn),
+        _cm(ve),
+        _cm(vd),
+        round(course * 100.0) % 36000,  # cog
+        10,  # satellites_visible
+        0,  # id
+        0,  # yaw: 0 = not available
+    ]
+
+
+hil_gps_fields = _fields_of(
+    mavlink2.MAVLink_hil_gps_message,
+    hil_gps_args,
+    "Keyword arguments of `mav.hil_gps_send` (3-D fix, 10 satellites, eph/epv 0.3 m).",
+)
 
 
 # --- a state estimate: ODOMETRY (simulator → autopilot, with --estimator-noise) ----------------
@@ -388,9 +453,9 @@ class NonFiniteCommand(ValueError):
     """A motor command that must never be transmitted (PX4 reads NaN as 'stop the motors')."""
 
 
-@_saturating(mavlink2.MAVLink_hil_actuator_controls_message)
-def actuator_controls_fields(motors: np.ndarray, time_usec: int, armed: bool, lockstep: bool) -> dict:
-    """Keyword arguments of `mav.hil_actuator_controls_send` for 4 motor commands in [0, 1] (our
+@_saturating_args(mavlink2.MAVLink_hil_actuator_controls_message)
+def actuator_controls_args(motors, time_usec: int, armed: bool, lockstep: bool) -> list:
+    """Arguments of `mav.hil_actuator_controls_send` (in order) for 4 motor commands in [0, 1] (our
     rotor order). Raises NonFiniteCommand for NaN/Inf; clamps finite values to [0, 1]."""
     values = np.asarray(motors, np.float64).reshape(-1).tolist()
     if len(values) != NUM_MOTORS:
@@ -401,12 +466,15 @@ def actuator_controls_fields(motors: np.ndarray, time_usec: int, armed: bool, lo
         if not math.isfinite(v):
             raise NonFiniteCommand(f"refusing to send non-finite motor commands {values}")
         controls[wire] = 1.0 if v > 1.0 else (0.0 if v < 0.0 else v)
-    return {
-        "time_usec": int(time_usec),
-        "controls": controls,
-        "mode": ARMED if armed else 0,
-        "flags": LOCKSTEP if lockstep else 0,
-    }
+    return [int(time_usec), controls, ARMED if armed else 0, LOCKSTEP if lockstep else 0]
+
+
+actuator_controls_fields = _fields_of(
+    mavlink2.MAVLink_hil_actuator_controls_message,
+    actuator_controls_args,
+    """Keyword arguments of `mav.hil_actuator_controls_send` for 4 motor commands in [0, 1] (our
+    rotor order). Raises NonFiniteCommand for NaN/Inf; clamps finite values to [0, 1].""",
+)
 
 
 def motors_from_actuator_controls(msg) -> tuple[np.ndarray, bool, bool]:

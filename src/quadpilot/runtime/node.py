@@ -68,7 +68,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -77,10 +76,11 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.dynamics import NUM_MOTORS
 from quadpilot.core.observation import build_observation
-from quadpilot.core.state import POS, RATES, YAW
+from quadpilot.core.state import POS, YAW, P, Q, R
 from quadpilot.link import transport, wire
 
 from .commander import Commander
+from .flight_log import EpisodeLog
 from .ground_station import NODE_COMPONENT_ID, NODE_SYSTEM_ID, GroundStation, commander_for, commander_summary
 from .safety import SafetyMonitor
 from .setpoint import collective_thrust
@@ -155,53 +155,6 @@ class NodeConfig:
     def __post_init__(self) -> None:
         if self.start not in START_MODES:
             raise ValueError(f"start must be one of {START_MODES}, got {self.start!r}")
-
-
-@dataclass
-class EpisodeLog:
-    """What one flight recorded: ground truth per step and what the node did."""
-
-    t: list = field(default_factory=list)
-    states: list = field(default_factory=list)
-    """Ground truth per simulator step (12-state ENU/FLU); a step whose state was dropped repeats the
-    last valid one."""
-    targets: list = field(default_factory=list)
-    commands: list = field(default_factory=list)
-    sources: list = field(default_factory=list)
-    ticks: list = field(default_factory=list)
-    """Per step: True where the policy (or the monitor's fallback) ran, False where the command was held."""
-    latency_s: list = field(default_factory=list)
-    wall: list = field(default_factory=list)
-    """perf_counter() at each step's HIL_SENSOR: the loop's period and jitter."""
-    replies: int = 0
-    """HIL_ACTUATOR_CONTROLS sent in answer to a step, including blind ones before any valid state
-    (not logged: nothing to log them against)."""
-    blind_replies: int = 0
-    """Of `replies`, those flown blind (their step's state dropped), logged or not."""
-    home: wire.Home | None = None
-    """The geodetic origin flown with (`NodeConfig.home`, or the first valid position)."""
-    mavlink_version: int = 2
-    """The MAVLink version the node spoke to the simulator at the end of the flight."""
-    dropped: Counter = field(default_factory=Counter)
-    """Messages and states refused, by reason (see the module docstring)."""
-    failsafe: str | None = None
-    failsafe_latency_s: float | None = None
-    wall_s: float = 0.0
-    telemetry_sent: int = 0
-    events: list = field(default_factory=list)
-    """Commanded flights: (simulated time s, text) of every STATUSTEXT the commander sent."""
-    commander: dict | None = None
-    """Commanded flights: the commander's state at the end (armed, flown, landed state, mode, what
-    the ground station sent and what of it was dropped)."""
-
-    @property
-    def steps(self) -> int:
-        return len(self.commands)
-
-    @property
-    def step_s(self) -> float:
-        """s, the simulator's step: the median interval between logged steps (NaN below two)."""
-        return float(np.median(np.diff(self.t))) if len(self.t) > 1 else math.nan
 
 
 class Node:
@@ -455,7 +408,7 @@ class _Flight:
     def on_sensor(self, msg) -> None:
         """HIL_SENSOR: the step's last message; answered exactly once with HIL_ACTUATOR_CONTROLS."""
         t_in = time.perf_counter()
-        log, monitor, state = self.log, self.monitor, self.state
+        log, monitor, state, lockstep = self.log, self.monitor, self.state, self.cfg.lockstep
         t_us = msg.time_usec
         blind = t_us == self.bad_time and self.bad_time > self.state_time  # its step's state was dropped
         # a step is answered once, and never after a later one
@@ -482,7 +435,7 @@ class _Flight:
             self.held_source = monitor.source
         elif tick:
             s = (self.estimate if self.estimate_time == t_us else state).copy()
-            s[RATES] = wire.gyro_from_hil_sensor(msg)
+            s[P], s[Q], s[R] = wire.gyro_values_from_hil_sensor(msg)
             run = True
             heading = self.heading
             if commander is not None:
@@ -510,8 +463,8 @@ class _Flight:
             self.next_tick_us = nxt if nxt > t_us else t_us + self.period_us  # never a burst to catch up
         else:
             cmd = self.held  # between two of the policy's ticks: the last command, held
-        fields = wire.actuator_controls_fields(cmd, t_us, self.held_armed, self.cfg.lockstep)
-        self.link.mav.hil_actuator_controls_send(**fields)
+        self.link.mav.hil_actuator_controls_send(*wire.actuator_controls_args(cmd, t_us, self.held_armed, lockstep))
+        t_out = time.perf_counter()  # latency ends here: on one CPU the woken simulator may run inside the send
         self.link.flush()
         log.replies += 1
         log.blind_replies += blind
@@ -526,7 +479,7 @@ class _Flight:
             self.done |= self.disarmed_at is not None and t_us - self.disarmed_at >= DISARMED_LINGER_S * 1e6
         if state is None:  # flown blind before any valid state: nothing to log it against
             return
-        log.latency_s.append(time.perf_counter() - t_in)
+        log.latency_s.append(t_out - t_in)
         log.wall.append(t_in)
         log.t.append(t_us * 1e-6)
         log.states.append(state)  # on a blind step the last valid state, what the node knew
@@ -589,18 +542,3 @@ class _Flight:
         "HEARTBEAT": ignore,
         "STATUSTEXT": ignore,
     }
-
-
-def episode_summary(log: EpisodeLog, control_period_s: float, task: str = "hover") -> dict:
-    """Success and errors of one flight with the project's one definition (`core.mission.judge`,
-    the same as the training evaluation's); a failsafe is never a success. The log holds one entry
-    per simulator step: it is judged at the simulator's step as measured (`EpisodeLog.step_s`),
-    `control_period_s` when fewer than two steps were flown. `dropped`: what the node refused, by
-    reason (EpisodeLog.dropped)."""
-    from quadpilot.core.mission import judge
-
-    dt = log.step_s if math.isfinite(log.step_s) else control_period_s
-    out = judge(task, np.asarray(log.states), np.asarray(log.targets), dt)
-    out["success"] = bool(out["success"] and log.failsafe is None)
-    out["dropped"] = dict(log.dropped)  # packets and states refused, by reason
-    return out

@@ -81,6 +81,11 @@ FIELD_MAP: dict[str, tuple[str | None, str]] = {
         "seed s of one is not seed s of the other",
     ),
     "threads": ("threads", "torch.set_num_threads in both"),
+    "update": (
+        None,
+        "how our PPO computes its update and rollout forward passes (numpy: quadpilot.train.numpy_ppo, or "
+        "torch; equal to float32 rounding); SB3 computes its own with torch autograd",
+    ),
 }
 
 # Settings that are not PPOConfig fields but decide what the two compute.

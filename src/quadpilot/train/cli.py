@@ -242,6 +242,14 @@ def _add_sensor_options(p: argparse.ArgumentParser) -> None:
         "the preset's, else mlp.",
     )
     p.add_argument(
+        "--update",
+        choices=("numpy", "torch"),
+        help="How PPO computes its update and the rollout's forward passes (ppo only): numpy (the loss, its "
+        "hand-written gradient, the gradient clip and Adam in NumPy, quadpilot.train.numpy_ppo; --arch mlp "
+        "only) or torch (autograd and torch.optim.Adam, the reference). The two agree to float32 rounding, "
+        "not bit for bit. Default: numpy for mlp, torch for lstm.",
+    )
+    p.add_argument(
         "--sensor-noise",
         nargs="?",
         const="vehicle",

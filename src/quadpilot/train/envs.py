@@ -1,9 +1,10 @@
 """Gymnasium environments for hover, waypoint and circle tasks, single and batched.
 
-One engine, `QuadBatch`, owns N drones: sampling initial states, stepping the `core` dynamics,
-building observations with `core.build_observation`, and computing rewards and terminations with
-`core.reward`. `QuadEnv` is a `gymnasium.Env` over one drone; `QuadVectorEnv` is a
-`gymnasium.vector.VectorEnv` over N drones with masked same-step autoreset.
+One engine, `QuadBatch` (`train.batch`, re-exported here), owns N drones: sampling initial states,
+stepping the `core` dynamics, building observations as `core.build_observation` does, and computing
+rewards and terminations with `core.reward`, in place. `QuadEnv` is a `gymnasium.Env` over one
+drone; `QuadVectorEnv` is a `gymnasium.vector.VectorEnv` over N drones with masked same-step
+autoreset (`QuadBatch.step_autoreset`).
 
 Terminated (crash, leaving the flight area) and truncated (time limit) are kept apart everywhere.
 """
@@ -27,9 +28,6 @@ from quadpilot.core.mission import (
     SUCCESS_TOLERANCE_M,
     SUCCESS_WINDOW_S,
     TASKS,
-    window_success,
-    wrap_angle,
-    yaw_errors,
 )
 from quadpilot.core.observation import (
     HOVER_LAYOUT,
@@ -37,15 +35,14 @@ from quadpilot.core.observation import (
     TRACK_LAYOUT,
     TRACK_LAYOUT_V1,
     ObsLayout,
-    build_observation,
 )
 from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
-from quadpilot.core.randomization import RandomizationConfig, Randomizer
+from quadpilot.core.randomization import RandomizationConfig
 from quadpilot.core.randomization import preset as randomization_preset
-from quadpilot.core.reward import RewardConfig, circle_errors, circle_reward, crashed, hover_reward
-from quadpilot.core.sensor_noise import SensorNoise, SensorNoiseState, get_sensor_noise
-from quadpilot.core.start import sample_ball, sample_start_states
-from quadpilot.core.state import POS, YAW
+from quadpilot.core.reward import RewardConfig
+from quadpilot.core.sensor_noise import SensorNoise, get_sensor_noise
+
+from .batch import QuadBatch
 
 INIT_ROTOR = ("hover", "rest", "random")
 """`EnvConfig.init_rotor` values."""
@@ -208,163 +205,6 @@ def make_config(task: str | None = None, **kwargs: Any) -> EnvConfig:
     return dataclasses.replace(cfg, randomization=randomization) if randomization is not None else cfg
 
 
-class QuadBatch:
-    """N drones of one task: state, targets, episode bookkeeping. Pure NumPy, no Python loop
-    over drones. `reset(mask, rng)` re-samples the selected drones; `step(action)` advances all."""
-
-    def __init__(self, cfg: EnvConfig, n: int, params: ParamBatch | None = None) -> None:
-        self.cfg, self.n = cfg, n
-        self.dtype = np.dtype(cfg.dtype)
-        self.nominal = cfg.params
-        self.params = (params or ParamBatch.from_preset(self.nominal, n)).astype(self.dtype)
-        if self.params.n != n:
-            raise ValueError(f"params hold {self.params.n} drones, expected {n}")
-        self.u_hover = self.dtype.type(self.nominal.hover_command)
-        self.home = np.asarray(cfg.home, dtype=self.dtype)
-        self.target_radius = cfg.target_radius
-        self.state = np.zeros((n, dynamics.STATE_DIM), self.dtype)
-        self.rotor = np.full((n, self.params.n_rotors), self.u_hover, self.dtype)
-        self.target = np.tile(self.home, (n, 1))
-        self.target_vel = np.zeros((n, 3), self.dtype)
-        self.phase = np.zeros(n)  # circle: angle of the target point at t = 0
-        self.steps = np.zeros(n, np.int64)
-        self.ep_return = np.zeros(n)
-        self.err_sum = np.zeros(n)  # position error summed over the success window
-        self.heading = np.zeros(n, self.dtype)  # rad, the commanded heading (start yaw + offset)
-        self.yaw_rate_sum = np.zeros(n)  # |yaw rate| summed over the success window, rad/s
-        self.heading_err_sum = np.zeros(n)  # |heading error| summed over the success window, rad
-        self.obs = np.zeros((n, cfg.layout.dim), np.float32)
-        self._omega = cfg.circle_speed / cfg.circle_radius
-        self.noise_spec = cfg.noise
-        self.noise: SensorNoiseState | None = None  # built at the first reset, from its rng
-        # domain randomisation: plant parameters and disturbances redrawn per reset
-        self.randomizer = (
-            Randomizer(cfg.randomization, self.nominal, n, cfg.dt, self.dtype) if cfg.randomization else None
-        )
-
-    @property
-    def obs_heading(self) -> np.ndarray | None:
-        """The heading the observation is relative to: the commanded one (version 2), else None
-        (version 1: the world frame)."""
-        return self.heading if self.cfg.obs_version == 2 else None
-
-    # --- targets -------------------------------------------------------------------------
-    def _circle_target(self, idx) -> tuple[np.ndarray, np.ndarray]:
-        c = self.cfg
-        ang = self.phase[idx] + self._omega * c.dt * self.steps[idx]
-        ca, sa = np.cos(ang), np.sin(ang)
-        pos = self.home + c.circle_radius * np.stack([ca, sa, np.zeros_like(ca)], axis=1)
-        vel = c.circle_speed * np.stack([-sa, ca, np.zeros_like(ca)], axis=1)
-        return pos.astype(self.dtype), vel.astype(self.dtype)
-
-    # --- API -----------------------------------------------------------------------------
-    def reset(self, mask: np.ndarray, rng: np.random.Generator) -> None:
-        idx = np.flatnonzero(mask)
-        k = idx.size
-        if k == 0:
-            return
-        c = self.cfg
-        start = np.tile(self.home, (k, 1))
-        if c.task == "waypoint":
-            self.target[idx] = self.home + sample_ball(rng, k, self.target_radius)
-        elif c.task == "circle":
-            self.phase[idx] = rng.uniform(-np.pi, np.pi, k)
-            self.steps[idx] = 0
-            start, self.target_vel[idx] = self._circle_target(idx)
-            self.target[idx] = start
-        self.state[idx] = sample_start_states(rng, start, c.init_pos_radius, c.init_vel, c.init_tilt_deg, c.init_rate)
-        # the commanded heading, drawn next to the start state (before any plant draw, so that a
-        # randomised and a plain batch from one seed start alike)
-        offset = rng.uniform(-1.0, 1.0, k) * np.radians(c.heading_offset_deg) if c.heading_offset_deg else 0.0
-        self.heading[idx] = wrap_angle(self.state[idx, YAW] + offset)
-        if self.randomizer is not None:  # a new ParamBatch (dynamics re-derives its constants)
-            self.params = self.randomizer.resample(self.params, idx, rng, c.episode_steps)
-        if c.init_rotor == "hover":
-            self.rotor[idx] = self.u_hover
-        elif c.init_rotor == "rest":
-            self.rotor[idx] = 0.0
-        else:  # "random": drawn only with this option, so the default draws what it always drew
-            self.rotor[idx] = (self.u_hover * rng.random(k))[:, None]
-        self.steps[idx] = 0
-        self.ep_return[idx] = 0.0
-        self.err_sum[idx] = 0.0
-        self.yaw_rate_sum[idx] = 0.0
-        self.heading_err_sum[idx] = 0.0
-        if self.noise_spec is not None:  # the noise stream continues from a seed drawn here
-            seed = int(rng.integers(2**63))
-            if self.noise is None:
-                self.noise = SensorNoiseState(self.noise_spec, self.n, c.dt, np.random.default_rng(seed))
-            else:
-                self.noise.rng = np.random.default_rng(seed)
-            self.noise.reset(idx)
-        self.obs[idx] = build_observation(
-            self.sensed(idx),
-            self.target[idx],
-            self.target_vel[idx] if c.task == "circle" else None,
-            heading=None if self.obs_heading is None else self.obs_heading[idx],
-        )
-
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Advance all drones one control step. action (N, 4) in [−1, 1].
-        Returns (obs, reward, terminated, truncated, pos_error_norm), obs written into self.obs."""
-        c = self.cfg
-        command = dynamics.action_to_command(np.asarray(action, dtype=self.dtype), self.u_hover)
-        force, torque = self.randomizer.external(self.steps) if self.randomizer is not None else (None, None)
-        self.state, self.rotor = dynamics.step(
-            self.state, self.rotor, command, self.params, c.dt, c.substeps, force=force, torque=torque
-        )
-        self.steps += 1
-        circle = c.task == "circle"
-        if circle:
-            self.target, self.target_vel = self._circle_target(slice(None))
-        if self.noise is not None:
-            self.noise.step()
-        build_observation(
-            self.sensed(), self.target, self.target_vel if circle else None, out=self.obs, heading=self.obs_heading
-        )
-        pos_err = self.state[:, POS] - self.target  # world frame, m
-        crash = crashed(self.state, pos_err, c.reward)
-        rate, head = yaw_errors(self.state, self.heading)
-        paid = head if c.obs_version == 2 else None  # version 1: no heading term in the reward
-        if circle:
-            reward = circle_reward(
-                self.state, pos_err, crash, self.home, c.circle_radius, c.circle_speed, c.reward, paid
-            )
-        else:
-            reward = hover_reward(self.state, pos_err, crash, c.reward, paid)
-        err = np.sqrt(np.einsum("ij,ij->i", pos_err, pos_err))
-        self.ep_return += reward
-        window = self.steps > c.episode_steps - c.success_steps
-        self.err_sum += np.where(window, err, 0.0)
-        np.add(self.yaw_rate_sum, rate, out=self.yaw_rate_sum, where=window)
-        np.add(self.heading_err_sum, head, out=self.heading_err_sum, where=window)
-        truncated = (self.steps >= c.episode_steps) & ~crash
-        return self.obs, reward, crash, truncated, err
-
-    def sensed(self, idx=None) -> np.ndarray:
-        """The 12-states the observation is built from: the true state (the array itself) without
-        sensor noise, else the noisy estimate of drones `idx` (None: all)."""
-        if self.noise is None:
-            return self.state if idx is None else self.state[idx]
-        return self.noise.estimate(self.state if idx is None else self.state[idx], idx)
-
-    def success(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
-        """(N,) bool: ended by the time limit with mean error over the window within tolerance and
-        the start heading held (`core.mission.window_success`, the rule SITL judges by)."""
-        k = self.cfg.success_steps
-        return window_success(
-            truncated & ~terminated,
-            self.err_sum / k,
-            self.yaw_rate_sum / k,
-            self.heading_err_sum / k,
-            self.cfg.success_tolerance,
-        )
-
-    def circle_metrics(self) -> tuple[np.ndarray, np.ndarray]:
-        """(radius error, tangential-speed error), each (N,), for the circle task."""
-        return circle_errors(self.state, self.home, self.cfg.circle_radius, self.cfg.circle_speed)
-
-
 def _spaces(cfg: EnvConfig) -> tuple[gym.spaces.Box, gym.spaces.Box]:
     obs = gym.spaces.Box(-np.inf, np.inf, (cfg.layout.dim,), np.float32)
     act = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
@@ -450,17 +290,14 @@ class QuadVectorEnv(VectorEnv):
         actions = np.asarray(actions)
         if actions.shape != (self.num_envs, 4):
             raise ValueError(f"actions must have shape ({self.num_envs}, 4), got {actions.shape}")
-        obs, reward, term, trunc, _ = self.batch.step(actions)
-        done = term | trunc
+        # step, then reset of the drones that ended (QuadBatch.step_autoreset: the batch's arrays,
+        # copied out below, and the ended episodes' last observations, returns, lengths, success)
+        reward, term, trunc, done, ended = self.batch.step_autoreset(actions, self._rng)
         infos: dict[str, Any] = {}
-        if done.any():
-            infos["final_obs"] = obs.copy()
+        if ended is not None:
+            final_obs, ep_return, steps, success = ended
+            infos["final_obs"] = final_obs
             infos["_final_obs"] = done
-            infos["episode"] = {
-                "r": self.batch.ep_return.copy(),
-                "l": self.batch.steps.copy(),
-                "success": self.batch.success(term, trunc),
-            }
+            infos["episode"] = {"r": ep_return, "l": steps, "success": success}
             infos["_episode"] = done
-            self.batch.reset(done, self._rng)
-        return self.batch.obs.copy(), reward.astype(np.float32), term, trunc, infos
+        return self.batch.obs.copy(), reward.astype(np.float32), term.copy(), trunc.copy(), infos

@@ -24,8 +24,8 @@ SIZE_OPTIONS = {
     "obs_history": ("K", 1),
     "bptt_steps": ("L", 0),
 }
-PPO_NETWORK_OPTIONS = ("arch", "obs_history", "bptt_steps")
-"""Options of our PPO's network: refused for the other algorithms."""
+PPO_NETWORK_OPTIONS = ("arch", "obs_history", "bptt_steps", "update")
+"""Options of our PPO (its network, and how its update is computed): refused for the other algorithms."""
 PPO_UPDATE_OPTIONS = ("epochs", "lr", "lr_schedule")
 """Options of PPO's update (ours and the SB3 baseline's): refused for SAC."""
 RESUME_MAY_CHANGE = ("total_steps", "threads")
@@ -83,10 +83,11 @@ def parse_overrides(items: list[str] | None, cls: type, algo: str) -> dict[str, 
 
 def explicit_options(args, algo) -> dict[str, Any]:
     """The configuration fields the command line gives for trainer class `algo`: the size flags,
-    --arch, then --set (which wins)."""
+    --arch, --update, PPO's update settings, then --set (which wins)."""
     explicit = {k: getattr(args, k) for k in SIZE_OPTIONS if getattr(args, k) is not None}
-    if getattr(args, "arch", None):
-        explicit["arch"] = args.arch
+    for k in ("arch", "update"):
+        if getattr(args, k, None):
+            explicit[k] = getattr(args, k)
     for k in PPO_UPDATE_OPTIONS:
         if getattr(args, k, None) is not None:
             explicit[k] = getattr(args, k)

@@ -8,6 +8,9 @@ Read against the paper:
       L^CLIP = E_t[min(r_t(θ)·Â_t, clip(r_t(θ), 1 − ε, 1 + ε)·Â_t)]          (eq. 7)
       r_t(θ) = π_θ(a_t|s_t) / π_θold(a_t|s_t)                                 (eq. 6)
   and θ_old ← θ.
+- With `PPOConfig.update = "numpy"` (an MLP's default) the same minibatches go through `numpy_ppo`:
+  that loss with its gradient written out, the same gradient clip and Adam, on the same parameters
+  and optimiser state; the rollout's forward passes too. torch's path stays the reference.
 
 Health metrics come back as a dict under fixed names (DESIGN style rule 5); the run loop (`run`)
 decides where they go. approx_kl uses the (r − 1) − log r estimator (Schulman, "Approximating KL
@@ -34,6 +37,10 @@ from .envs import EnvConfig, QuadVectorEnv
 from .gae import compute_gae
 from .history import HistoryVectorEnv, network_input_dim
 from .networks import ActorCritic, RecurrentActorCritic, build_actor_critic
+from .numpy_ppo import LOG_SQRT_2PI, NumpyPPO
+
+UPDATE_PATHS = ("auto", "numpy", "torch")
+STAT_KEYS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "grad_norm")
 
 
 @dataclass(frozen=True)
@@ -107,7 +114,24 @@ class PPOConfig:
     seed: int = 0
     """Seed for the environment, the networks and the sampling."""
     threads: int = 2
-    """torch intra-op threads."""
+    """torch intra-op threads (the NumPy update runs its matrix products on one BLAS thread: faster at
+    these sizes)."""
+    update: str = "auto"
+    """How the update and the rollout's forward passes are computed: torch (autograd and
+    torch.optim.Adam: the reference), numpy (`numpy_ppo`: the same loss, hand-written gradient, clip
+    and Adam in NumPy, on the same parameters and optimiser state; equal to float32 rounding, and
+    ~2.5× faster per gradient step at minibatch 1,024: benchmarks/test_ppo_gradient_step.py; arch
+    mlp only), or auto: numpy for arch mlp, torch for lstm. auto is resolved when the configuration is
+    made, so a run's config.json names the path it trained with; a configuration saved before this
+    field existed reads as torch, the path that trained it."""
+
+    def __post_init__(self) -> None:
+        if self.update == "auto":
+            object.__setattr__(self, "update", "numpy" if self.arch == "mlp" else "torch")
+        if self.update not in UPDATE_PATHS:
+            raise ValueError(f"update must be one of {', '.join(UPDATE_PATHS)}; got {self.update!r}")
+        if self.update == "numpy" and self.arch != "mlp":
+            raise ValueError(f"update 'numpy' is for arch 'mlp' only; arch {self.arch!r} needs update 'torch'")
 
     @property
     def batch_size(self) -> int:
@@ -134,6 +158,7 @@ class PPOConfig:
         d = dict(d)
         for k in ("actor_hidden", "critic_hidden"):
             d[k] = tuple(d[k])
+        d.setdefault("update", "torch")  # saved before the NumPy path existed: trained with torch
         return cls(**d)
 
 
@@ -210,6 +235,8 @@ class PPO(trainer.Trainer):
         torch.manual_seed(cfg.seed)  # parameter initialisation draws from the default generator
         self.model: ActorCritic | RecurrentActorCritic = build_actor_critic(obs_dim, 4, cfg)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, eps=1e-5)
+        # the NumPy path moves the parameters onto flat memory it shares with torch (values unchanged)
+        self._np = NumpyPPO(self.model, self.opt) if cfg.update == "numpy" else None
         self.obs_rms = RunningMeanStd((obs_dim,))
         if self.recurrent:  # LSTM states carried from step to step and rollout to rollout
             self.rollout_state = recurrent_ppo.initial_rollout_state(self.model, cfg.num_envs)
@@ -249,9 +276,17 @@ class PPO(trainer.Trainer):
     # --- checkpoint entries (`trainer.Trainer.state_dict`) -----------------------------------
     def own_state(self) -> dict:
         rms = self.obs_rms
+        opt = self.opt.state_dict()
+        if self._np is None:
+            opt = copy.deepcopy(opt)
+        else:  # the NumPy path's Adam state are views of flat tensors: each saved on its own, as torch's
+            opt = {
+                "state": {i: {k: v.detach().clone() for k, v in st.items()} for i, st in opt["state"].items()},
+                "param_groups": copy.deepcopy(opt["param_groups"]),
+            }
         return {
             "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
-            "optimizer": copy.deepcopy(self.opt.state_dict()),
+            "optimizer": opt,
             "obs_rms": {"mean": tensor(rms.mean), "var": tensor(rms.var), "count": rms.count, "clip": rms.clip},
         }
 
@@ -281,27 +316,23 @@ class PPO(trainer.Trainer):
         n, T = self.cfg.num_envs, self.cfg.rollout_steps
         obs_dim = self.obs_dim
         obs_buf = np.zeros((T, n, obs_dim), np.float32)
-        act_buf = torch.zeros((T, n, 4))
-        logp_buf = torch.zeros((T, n))
+        act_buf = np.zeros((T, n, 4), np.float32)
+        logp_buf = np.zeros((T, n), np.float32)
         val_buf = np.zeros((T + 1, n))
         rew_buf = np.zeros((T, n))
         term_buf = np.zeros((T, n), bool)
         trunc_buf = np.zeros((T, n), bool)
         final_val = np.zeros((T, n))
         raw_seen = [self._obs]
-        std = self.model.log_std.exp()
+        std = self.model.log_std.exp() if self._np is None else np.exp(self._np.log_std)
         obs_n = self._norm(self._obs)
         env_s = 0.0  # time inside env.step; the rest of the rollout is inference and bookkeeping
         for t in range(T):
             obs_buf[t] = obs_n
-            x = torch.from_numpy(obs_n)
-            mean = self.model.actor(x)
-            action = mean + std * torch.randn(mean.shape, generator=self.torch_gen)
-            logp_buf[t] = torch.distributions.Normal(mean, std).log_prob(action).sum(-1)
+            action, logp_buf[t], val_buf[t] = self._act(obs_n, std)
             act_buf[t] = action
-            val_buf[t] = self.model.value(x).numpy()
             te = time.perf_counter()
-            raw, reward, term, trunc, infos = self.env.step(action.clamp(-1.0, 1.0).numpy())
+            raw, reward, term, trunc, infos = self.env.step(np.clip(action, -1.0, 1.0))
             env_s += time.perf_counter() - te
             rew_buf[t], term_buf[t], trunc_buf[t] = reward, term, trunc
             if "_final_obs" in infos:
@@ -309,22 +340,42 @@ class PPO(trainer.Trainer):
                 tr = np.flatnonzero(trunc)
                 if tr.size:  # bootstrap from the final observation of time-limit truncations
                     final = self._norm(infos["final_obs"][tr])
-                    final_val[t, tr] = self.model.value(torch.from_numpy(final)).numpy()
+                    final_val[t, tr] = self._value(final)
                     raw_seen.append(infos["final_obs"][tr])
             raw_seen.append(raw)
             self._obs = raw
             obs_n = self._norm(raw)
-        val_buf[T] = self.model.value(torch.from_numpy(obs_n)).numpy()
+        val_buf[T] = self._value(obs_n)
         adv, ret = self._finish_rollout(raw_seen, rew_buf, val_buf, final_val, term_buf, trunc_buf, env_s)
         flat = lambda a: torch.as_tensor(a, dtype=torch.float32).reshape(T * n, *a.shape[2:])  # noqa: E731
         return {
             "obs": flat(obs_buf),
-            "act": act_buf.reshape(T * n, 4),
-            "logp": logp_buf.reshape(T * n),
+            "act": torch.from_numpy(act_buf.reshape(T * n, 4)),
+            "logp": torch.from_numpy(logp_buf.reshape(T * n)),
             "adv": flat(adv),
             "ret": flat(ret),
             "val": flat(val_buf[:T]),
         }
+
+    def _act(self, obs_n: np.ndarray, std) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The Gaussian policy sampled at normalised observations (n, obs_dim): action (n, 4),
+        log π(action) (n,) and V (n,). The noise is drawn from torch_gen on either path."""
+        if self._np is not None:
+            mean = self._np.actor_mean(obs_n)
+            action = mean + std * torch.randn(mean.shape, generator=self.torch_gen).numpy()
+            diff = action - mean  # log π as torch.distributions.Normal.log_prob computes it
+            logp = (-(diff * diff) / (2 * (std * std)) - np.log(std) - LOG_SQRT_2PI).sum(-1)
+            return action, logp, self._np.value(obs_n)
+        x = torch.from_numpy(obs_n)
+        mean = self.model.actor(x)
+        action = mean + std * torch.randn(mean.shape, generator=self.torch_gen)
+        logp = torch.distributions.Normal(mean, std).log_prob(action).sum(-1)
+        return action.numpy(), logp.numpy(), self.model.value(x).numpy()
+
+    def _value(self, obs_n: np.ndarray) -> np.ndarray:
+        if self._np is not None:
+            return self._np.value(obs_n)
+        return self.model.value(torch.from_numpy(obs_n)).numpy()
 
     def _finish_rollout(self, raw_seen, rew, val, final_val, term, trunc, env_s: float):
         """The end of every rollout, feed-forward or recurrent: the normaliser update, the
@@ -362,10 +413,21 @@ class PPO(trainer.Trainer):
         stats.update(clip_fraction=[], grad_norm=[])
         skipped_steps = 0
         params = list(self.model.parameters())
+        if self._np is not None:  # the same minibatches, loss, clip and Adam in NumPy (numpy_ppo)
+            self._np.attach()
+            packed = self._np.pack(batch)
         for _epoch in range(cfg.epochs):
             perm = idx_all[torch.randperm(size, generator=self.torch_gen)]
             for start in range(0, size - mb + 1, mb) if mb else []:
                 i = perm[start : start + mb]
+                if self._np is not None:
+                    step = self._np.minibatch_step(packed, i.numpy(), cfg)
+                    if step is None:  # a non-finite loss or gradient norm: skipped, as below
+                        skipped_steps += 1
+                    else:
+                        for k, x in zip(STAT_KEYS, step, strict=True):
+                            stats[k].append(x)
+                    continue
                 if self.recurrent:  # replay whole sequences from their stored LSTM states
                     dist, v, data = recurrent_ppo.forward(self.model, batch, i)
                 else:
