@@ -187,8 +187,11 @@ def test_the_smallest_shipped_model_retrains_from_its_recorded_command(tmp_path)
     model = smallest_model()
     out = tmp_path / "run"
     env, args = recorded_command(model, out)
-    if "update" not in json.loads((model / "config.json").read_text()).get("ppo", {}):
-        args += ["--update", "torch"]  # trained before PPOConfig.update existed, so with torch
+    recorded = json.loads((model / "config.json").read_text()).get("ppo", {})
+    if "update" not in recorded:  # trained before PPOConfig.update existed: with torch, 10 epochs by default
+        args += ["--update", "torch"]
+        if "--epochs" not in args:
+            args += ["--epochs", str(recorded["epochs"])]
     code = "import sys; from quadpilot.train.cli import main; sys.exit(main(sys.argv[1:]))"
     r = subprocess.run(
         [sys.executable, "-c", code, *args], cwd=tmp_path, capture_output=True, text=True, env={**os.environ, **env}

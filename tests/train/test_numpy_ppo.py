@@ -185,7 +185,7 @@ TINY = [
     *("--task", "hover", "--num-envs", "8", "--rollout-steps", "16", "--minibatch-size", "32", "--lr-schedule"),
     *("constant", "--threads", "1", "--eval-episodes", "0", "--eval-every", "0", "--update", "numpy"),
 ]
-STEPS_PER_UPDATE = 10 * 128 // 32  # Adam steps: 10 epochs of 8 × 16 transitions in minibatches of 32
+STEPS_PER_UPDATE = PPOConfig().epochs * 128 // 32  # Adam steps: K epochs of 8 × 16 transitions in minibatches of 32
 
 
 def test_a_resumed_numpy_run_ends_exactly_like_a_straight_one_and_saves_torchs_format(tmp_path):

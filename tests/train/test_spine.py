@@ -65,9 +65,10 @@ def test_a_checkpoint_written_before_the_spine_resumes_to_the_same_weights(tmp_p
 TINY = ["--threads", "1", "--eval-episodes", "0", "--eval-every", "0"]
 # quad-train flags → sha256 of policy.pt's model, computed by quadpilot f6db119 on this machine; that
 # code trained what --obs-version 1 trains (world-frame attitude, no heading to hold), and with torch:
-# --update torch keeps these runs on the reference path now that an MLP's default is numpy
+# --update torch keeps these runs on the reference path now that an MLP's default is numpy, and
+# --epochs 10 on the epochs that code ran by default
 PPO_TINY = [
-    *("--task", "hover", "--num-envs", "16", "--rollout-steps", "16", "--minibatch-size", "64"),
+    *("--task", "hover", "--num-envs", "16", "--rollout-steps", "16", "--minibatch-size", "64", "--epochs", "10"),
     *("--total-steps", "512"),
 ]
 RUNS = {
@@ -76,6 +77,7 @@ RUNS = {
         [
             *("--task", "hover", "--arch", "lstm", "--bptt-steps", "8", "--num-envs", "8", "--rollout-steps", "16"),
             *("--minibatch-size", "64", "--total-steps", "256", "--randomize", "--sensor-noise", "--update", "torch"),
+            *("--epochs", "10"),
         ],
         "70388ce6e3ab80aa7d790b81019df85db2b498430df97eb0860dcd75800b4fee",
     ),
