@@ -26,10 +26,21 @@ from quadpilot.core.mission import (
     window_success,
     yaw_errors,
 )
+from quadpilot.core.state import POS, YAW
 
 from .envs import EnvConfig, QuadBatch
 
 Policy = Callable[[np.ndarray], np.ndarray]
+
+
+def _park(batch: QuadBatch, out: np.ndarray) -> None:
+    """Put the drones `out` (crashed, out of the evaluation) back at rest at their targets, level and
+    at their headings. Every figure of theirs is masked from the crash on; parked, they do not tumble
+    on to overflow and NaN while the others fly (the policy still sees them, batched)."""
+    s = batch.state
+    s[out] = 0.0
+    s[out, POS] = batch.target[out]
+    s[out, YAW] = batch.heading[out]
 
 
 def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int = 12345) -> dict:
@@ -65,6 +76,8 @@ def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int 
         length[newly] = t + 1
         final_err = np.where(alive, err, final_err)
         alive &= ~term
+        if not alive.all():
+            _park(batch, ~alive)
         if t >= T - window:
             err_sum += err
             rate, head = yaw_errors(batch.state, batch.heading)
