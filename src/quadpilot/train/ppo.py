@@ -279,13 +279,11 @@ class PPO(trainer.Trainer):
     def own_state(self) -> dict:
         rms = self.obs_rms
         opt = self.opt.state_dict()
-        if self._np is None:
-            opt = copy.deepcopy(opt)
-        else:  # the NumPy path's Adam state are views of flat tensors: each saved on its own, as torch's
-            opt = {
-                "state": {i: {k: v.detach().clone() for k, v in st.items()} for i, st in opt["state"].items()},
-                "param_groups": copy.deepcopy(opt["param_groups"]),
-            }
+        # every Adam tensor copied onto its own storage (the NumPy path's are views of flat tensors)
+        opt = {
+            "state": {i: {k: v.detach().clone() for k, v in st.items()} for i, st in opt["state"].items()},
+            "param_groups": copy.deepcopy(opt["param_groups"]),
+        }
         return {
             "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
             "optimizer": opt,
