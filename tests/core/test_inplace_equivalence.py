@@ -1,6 +1,7 @@
 """The in-place, allocation-free step computes bit for bit what the allocating functions compute.
 
-`dynamics.Stepper` against `dynamics.step`, `observation.ObservationBuilder` against
+`dynamics.Stepper` (and `dynamics.step`, which runs it) against the allocating form of the plant step
+(tests/core/allocating_dynamics.py), `observation.ObservationBuilder` against
 `build_observation`, the row helpers of `frames` and `reward` against `euler_to_rotmat`,
 `world_to_body` and np.einsum, `reward.StepTerms` against `crashed`, `mission.yaw_errors`,
 `hover_reward` and `circle_reward`, and `SensorNoiseState.estimate_rows` against `estimate`. Unlike
@@ -16,6 +17,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from allocating_dynamics import allocating_step
 
 from quadpilot.core import dynamics
 from quadpilot.core.frames import euler_to_rotmat, euler_to_rotmat_rows, world_to_body, world_to_body_rows
@@ -83,7 +85,7 @@ def states(n: int, dtype, seed: int = 0) -> np.ndarray:
 @pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: np.dtype(d).name)
 @pytest.mark.parametrize("vehicle", sorted(VEHICLES))
 @pytest.mark.parametrize("substeps", [1, 3])
-def test_stepper_gives_the_bits_of_step(vehicle, dtype, substeps):
+def test_stepper_and_step_give_the_bits_of_the_allocating_step(vehicle, dtype, substeps):
     n = 37  # not a multiple of a SIMD width: the loops' tails are compared too
     params = ParamBatch.from_preset(VEHICLES[vehicle], n, dtype=np.dtype(dtype))
     rng = np.random.default_rng(1)
@@ -94,14 +96,18 @@ def test_stepper_gives_the_bits_of_step(vehicle, dtype, substeps):
     for force, torque in ((None, None), (rng.normal(0, 1, (n, 3)), rng.normal(0, 0.01, (n, 3)))):
         force = None if force is None else force.astype(dtype)
         torque = None if torque is None else torque.astype(dtype)
-        want_s, want_w = dynamics.step(s0, w0, command, params, 0.01, substeps, force=force, torque=torque)
-        s, w, u = np.ascontiguousarray(s0.T), np.ascontiguousarray(w0.T), np.ascontiguousarray(command.T)
-        stepper.step(s, w, u, params, 0.01, substeps, force=force, torque=torque)
-        assert same(s.T, want_s) and same(w.T, want_w)
+        for armed in (None, np.arange(n) % 3 != 1):
+            args = (s0, w0, command, params, 0.01, substeps)
+            want_s, want_w = allocating_step(*args, force=force, torque=torque, armed=armed)
+            got_s, got_w = dynamics.step(*args, force=force, torque=torque, armed=armed)
+            assert same(got_s, want_s) and same(got_w, want_w)
+            s, w, u = np.ascontiguousarray(s0.T), np.ascontiguousarray(w0.T), np.ascontiguousarray(command.T)
+            stepper.step(s, w, u, params, 0.01, substeps, force=force, torque=torque, armed=armed)
+            assert same(s.T, want_s) and same(w.T, want_w)
 
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: np.dtype(d).name)
-def test_stepper_with_the_observations_trigonometry_gives_the_bits_of_step(dtype):
+def test_stepper_with_the_observations_trigonometry_gives_the_bits_of_the_allocating_step(dtype):
     """The sines, cosines and thrust axis the observation computed for the state are the ones the
     dynamics computes first (QuadBatch hands them over)."""
     n = 41
@@ -109,7 +115,7 @@ def test_stepper_with_the_observations_trigonometry_gives_the_bits_of_step(dtype
     s0 = states(n, dtype, seed=2)
     w0 = np.full((n, 4), 0.5, dtype)
     command = np.random.default_rng(3).uniform(0, 1, (n, 4)).astype(dtype)
-    want_s, want_w = dynamics.step(s0, w0, command, params)
+    want_s, want_w = allocating_step(s0, w0, command, params)
     s, w, u = np.ascontiguousarray(s0.T), np.ascontiguousarray(w0.T), np.ascontiguousarray(command.T)
     ob = ObservationBuilder(n, dtype)
     ob.build(s, np.zeros((n, 3), dtype), np.empty((n, 18), np.float32))

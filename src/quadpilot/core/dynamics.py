@@ -32,9 +32,9 @@ rotors spin down through the motor lag and stop. The rotor state itself is not c
 starting at rest spins up to ω_min through the lag (RotorPy also clips its state, which makes a
 rotor at rest jump to ω_min in one step).
 
-`step` allocates its results and intermediates; `Stepper` does the same arithmetic in place on
-state rows (12, N) with buffers made once, bit for bit, for a batch stepped every control period
-(the training environments).
+`Stepper` is the one implementation: it advances state rows (12, N) in place with buffers made
+once, for a batch stepped every control period (the training environments); `step` copies its
+inputs to rows, runs it, and returns new arrays.
 
 Integration per (sub)step of length h: rotor lag exactly discretised; body rates by Euler's
 rotational equation with the gyroscopic term ω × (Iω), forward in time; Euler angles advanced with
@@ -110,42 +110,37 @@ def step(
 
     armed (N,) bool: False turns a drone's motors off (commanded speed 0, see the module docstring);
     None (the default) is every drone armed.
+
+    The arithmetic is `Stepper`'s, the one implementation of the model: the inputs are copied to
+    rows, advanced in place and copied out.
     """
     _check(state, rotor, command, params)
-    ext = None if force is None and torque is None else _external(force, torque, params, state.dtype)
-    h = dt / substeps
-    d = _derived(params, h, state.dtype)
-    cmd = np.clip(command, d.u_min, 1.0)
-    if armed is not None:
-        armed = np.asarray(armed)
-        if armed.shape != (params.n,):
-            raise ValueError(f"armed must have shape ({params.n},), got {armed.shape}")
-        cmd = np.where(armed[:, None], cmd, 0.0).astype(cmd.dtype, copy=False)
-    # Work on rows (12, N): contiguous per quantity, which is what elementwise NumPy is fast on.
-    s = list(np.ascontiguousarray(state.T))
-    w = list(np.ascontiguousarray(rotor.T))
-    u = list(np.ascontiguousarray(cmd.T))
-    for _ in range(substeps):
-        s, w = _substep(s, w, u, d, h, ext)
-    return np.stack(s, axis=1), np.stack(w, axis=1)
+    dtype = state.dtype
+    if dtype not in _FLOATS:
+        raise ValueError(f"state must be float32 or float64, got {dtype}")
+    # the rows (12, N), (M, N) of `Stepper`, copied: the inputs are not modified
+    s = np.array(state.T, order="C")
+    w = np.array(rotor.T, dtype, order="C")
+    u = np.array(command.T, dtype, order="C")
+    _stepper(params.n, params.n_rotors, dtype).step(s, w, u, params, dt, substeps, force, torque, armed=armed)
+    return np.ascontiguousarray(s.T), np.ascontiguousarray(w.T)
 
 
-def _external(force, torque, params: ParamBatch, dtype) -> tuple:
-    """Rows of the external acceleration (force/m, m/s²) and moment (N·m), in the state dtype;
-    None for a part not given."""
-    n = params.n
-    acc = mom = None
-    if force is not None:
-        force = np.asarray(force)
-        if force.shape != (n, 3):
-            raise ValueError(f"force must have shape ({n}, 3) (N, world ENU), got {force.shape}")
-        acc = tuple(np.ascontiguousarray((force / params.mass[:, None]).T, dtype=dtype))
-    if torque is not None:
-        torque = np.asarray(torque)
-        if torque.shape != (n, 3):
-            raise ValueError(f"torque must have shape ({n}, 3) (N·m, body FLU), got {torque.shape}")
-        mom = tuple(np.ascontiguousarray(torque.T, dtype=dtype))
-    return acc, mom
+_FLOATS = (np.dtype(np.float32), np.dtype(np.float64))
+_STEPPERS: dict = {}
+_MAX_STEPPERS = 16  # batch shapes kept per process; a caller steps one or two
+
+
+def _stepper(n: int, m: int, dtype) -> Stepper:
+    """A `Stepper` for `step`, made once per batch shape and dtype (its buffers are scratch: `step`
+    copies in and out, so one serves every call of that shape; NumPy code here is single-threaded)."""
+    key = (n, m, np.dtype(dtype).str)
+    hit = _STEPPERS.get(key)
+    if hit is None:
+        if len(_STEPPERS) >= _MAX_STEPPERS:
+            _STEPPERS.clear()
+        hit = _STEPPERS[key] = Stepper(n, m, dtype)
+    return hit
 
 
 def _derived(params: ParamBatch, h: float, dtype) -> _Derived:
@@ -264,51 +259,6 @@ def _wrench_maker(layout: tuple):
     return hit
 
 
-def _substep(s, w, u, d: _Derived, h: float, ext: tuple | None = None):
-    x, y, z, vx, vy, vz, phi, th, psi, p, q, r = s
-    if d.lag:
-        w = [ui + d.decay * (wi - ui) for wi, ui in zip(w, u, strict=True)]
-    else:
-        w = list(u)
-    f = [d.f_max * wi * wi for wi in w]  # F = k_f·ω², N
-    thrust, tx, ty, tz = d.wrench(f)  # N, and N·m in body FLU (module docstring)
-    if ext is not None and ext[1] is not None:  # external moment, body FLU
-        tx, ty, tz = tx + ext[1][0], ty + ext[1][1], tz + ext[1][2]
-
-    # Euler's rotational equation I·ω̇ = τ − ω × (I·ω), diagonal I.
-    p1 = p + h * (tx - d.izz_iyy * q * r) * d.inv_ixx
-    q1 = q + h * (ty - d.ixx_izz * p * r) * d.inv_iyy
-    r1 = r + h * (tz - d.iyy_ixx * p * q) * d.inv_izz
-    pm, qm, rm = 0.5 * (p + p1), 0.5 * (q + q1), 0.5 * (r + r1)
-
-    sphi, cphi = np.sin(phi), np.cos(phi)
-    sth, cth = np.sin(th), np.cos(th)
-    spsi, cpsi = np.sin(psi), np.cos(psi)
-
-    # ZYX Euler kinematics: [φ̇, θ̇, ψ̇] = W(φ, θ)·[p, q, r]
-    qs_rc = qm * sphi + rm * cphi
-    phi1 = phi + h * (pm + qs_rc * sth / cth)
-    th1 = th + h * (qm * cphi - rm * sphi)
-    psi1 = psi + h * (qs_rc / cth)
-    psi1 = psi1 - _TWO_PI * np.floor((psi1 + np.pi) * _INV_TWO_PI)  # keep yaw in [−π, π)
-
-    # Thrust along the body z axis, R·e3 = third column of Rz·Ry·Rx.
-    t_m = thrust * d.inv_m
-    ax = t_m * (cpsi * sth * cphi + spsi * sphi)
-    ay = t_m * (spsi * sth * cphi - cpsi * sphi)
-    az = t_m * (cth * cphi) - d.g
-    if d.drag:
-        ax = ax - d.drag_over_m * vx
-        ay = ay - d.drag_over_m * vy
-        az = az - d.drag_over_m * vz
-    if ext is not None and ext[0] is not None:  # external force / m, world ENU
-        ax, ay, az = ax + ext[0][0], ay + ext[0][1], az + ext[0][2]
-    hh = 0.5 * h * h
-    x1, y1, z1 = x + h * vx + hh * ax, y + h * vy + hh * ay, z + h * vz + hh * az
-    vx1, vy1, vz1 = vx + h * ax, vy + h * ay, vz + h * az
-    return [x1, y1, z1, vx1, vy1, vz1, phi1, th1, psi1, p1, q1, r1], w
-
-
 class Stepper:
     """`step` in place, for a batch stepped every control period: the state and rotor rows are
     advanced where they lie and every intermediate lives in rows allocated here once, so a step
@@ -366,6 +316,7 @@ class Stepper:
         force: np.ndarray | None = None,
         torque: np.ndarray | None = None,
         trig: tuple | None = None,
+        armed: np.ndarray | None = None,
     ) -> None:
         """Advance N drones by `dt` in place: s (12, N) state rows (`core.state` order), w (M, N)
         rotor rows; u (M, N) commanded speeds, clipped here in place to [ω_min/ω_max, 1] as `step`
@@ -373,7 +324,9 @@ class Stepper:
         dtype this Stepper was made for. trig: None, or (sin, cos, zaxis) of the state s holds now,
         each (3, N): sin and cos of roll, pitch, yaw, and (R02, R12, R22) as
         `frames.euler_to_rotmat_rows` computes them (the same operations as `_substep`'s
-        acceleration terms), used for the first substep instead of computing them again."""
+        acceleration terms), used for the first substep instead of computing them again.
+        armed: None (every drone armed), or (N,) bool: False turns a drone's motors off, its
+        command 0 after the clip (`step`'s `armed`)."""
         n, m = self.n, self.m
         if s.shape != (STATE_DIM, n) or w.shape != (m, n) or u.shape != (m, n):
             raise ValueError(
@@ -402,6 +355,11 @@ class Stepper:
             mom = self.mom_ext
             np.copyto(mom, torque.T, casting="unsafe")
         _clip(u, k.u_min, 1.0, u)
+        if armed is not None:  # motors off command 0, below any idle speed (module docstring)
+            armed = np.asarray(armed)
+            if armed.shape != (n,):
+                raise ValueError(f"armed must have shape ({n},), got {armed.shape}")
+            np.copyto(u, 0.0, where=~armed.astype(bool))
         for i in range(substeps):
             self._substep(s, w, u, d, k, acc, mom, trig if i == 0 else None)
 

@@ -1,11 +1,11 @@
 """`core.dynamics.step` for the simulator's one drone, in scalar arithmetic (`SingleStep`).
 
 The simulator steps one vehicle at a time, and `core.dynamics.step` on a batch of one spends most
-of its time on NumPy's per-call overhead (some 30 ufunc calls on arrays of one element, and the
-stacking of rows), several times what the arithmetic itself costs on Python floats
-(benchmarks/test_sitl_speed.py measures the flight). This is that arithmetic, written out once more
-for one drone and one substep, operation for operation in the order `core.dynamics._substep` does
-it, so that it gives the same bits: IEEE
+of its time on NumPy's per-call overhead (some 60 ufunc calls on arrays of one element, and the
+copies in and out), several times what the arithmetic itself costs on Python floats
+(benchmarks/test_env_speed.py measures the batch of one, benchmarks/test_sitl_speed.py the
+flight). This is that arithmetic, written out once more for one drone and one substep, operation
+for operation in the order `core.dynamics.Stepper` does it, so that it gives the same bits: IEEE
 double arithmetic on Python floats and on float64 arrays rounds alike, and neither fuses a multiply
 with an add. What could differ is the trigonometry (`math.sin` is the C library's, `np.sin` may be
 NumPy's own SIMD code on some CPUs): `trig_agrees` checks the two on sample angles when the module
@@ -139,7 +139,7 @@ class SingleStep:
             u = [0.0] * self.n_rotors  # motors off: commanded speed 0
         x, y, z, vx, vy, vz, phi, th, psi, p, q, r = state.tolist()
         h = self.h
-        # --- core.dynamics._substep, operation for operation ---
+        # --- core.dynamics.Stepper's substep, operation for operation ---
         if self.lag:
             decay = self.decay
             w = [ui + decay * (wi - ui) for wi, ui in zip(rotor.tolist(), u, strict=True)]

@@ -43,7 +43,6 @@ from quadpilot.core.mission import window_success, wrap_angle, yaw_errors
 from quadpilot.core.observation import build_observation
 from quadpilot.core.params import VehicleParams
 from quadpilot.core.randomization import RandomizationConfig
-from quadpilot.core.reward import crashed, hover_reward
 from quadpilot.core.state import POS, YAW
 from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG
 from quadpilot.train.envs import EnvConfig, QuadBatch
@@ -124,10 +123,6 @@ class Flight:
         return self.crash_step < 0
 
 
-def _add(a, b):
-    return b if a is None else a if b is None else a + b
-
-
 def fly(
     controller,
     cfg: EnvConfig,
@@ -141,10 +136,11 @@ def fly(
 
     Start states and plants are drawn exactly as `evaluate(policy, cfg, n, seed)` draws them (one
     `QuadBatch.reset` with `default_rng(seed)`); `starts` (N, 12) replaces the start states.
-    Each step: the controller sees the observation, its output becomes rotor commands (actions
-    through the nominal-hover map, or commands as they are), and `core.dynamics.step` advances
-    the plant with the randomisation's external force plus `disturbance(k)`. Crashed drones keep
-    being stepped (as in `evaluate`) but count as crashed."""
+    Each step: the controller sees the observation and `QuadBatch.step` advances the batch (the
+    training environment's step, its observation, reward and crash rule) with the controller's
+    output (actions through the nominal-hover map, or commands as they are) and `disturbance(k)`
+    on top of the randomisation's external force. Crashed drones keep being stepped but count as
+    crashed."""
     batch = QuadBatch(cfg, n)
     batch.reset(np.ones(n, bool), np.random.default_rng(seed))
     if starts is not None:
@@ -161,27 +157,16 @@ def fly(
     err_sum = np.zeros(n)
     final_err = np.zeros(n)
     ep_return = np.zeros(n)
+    commands = controller.output != "action"
     for k in range(T):
-        out = controller(batch.obs.copy())
-        if controller.output == "action":
-            command = dynamics.action_to_command(np.asarray(out, batch.dtype), batch.u_hover)
-        else:
-            command = np.asarray(out, batch.dtype)
-        force, torque = batch.randomizer.external(batch.steps) if batch.randomizer is not None else (None, None)
+        out = np.asarray(controller(batch.obs.copy()), batch.dtype)
+        force = torque = None
         if disturbance is not None:
             f2, t2 = disturbance(k)
-            force = _add(force, None if f2 is None else np.asarray(f2, batch.dtype))
-            torque = _add(torque, None if t2 is None else np.asarray(t2, batch.dtype))
-        batch.state, batch.rotor = dynamics.step(
-            batch.state, batch.rotor, command, batch.params, cfg.dt, cfg.substeps, force=force, torque=torque
-        )
-        batch.steps += 1
-        build_observation(batch.state, batch.target, None, out=batch.obs, heading=batch.obs_heading)
-        pos_err = batch.state[:, POS] - batch.target
-        crash = crashed(batch.state, pos_err, cfg.reward)
-        paid = yaw_errors(batch.state, batch.heading)[1] if batch.obs_heading is not None else None
-        ep_return += np.where(alive, hover_reward(batch.state, pos_err, crash, cfg.reward, paid), 0.0)
-        err = np.sqrt(np.einsum("ij,ij->i", pos_err, pos_err))
+            force = None if f2 is None else np.asarray(f2, batch.dtype)
+            torque = None if t2 is None else np.asarray(t2, batch.dtype)
+        _, reward, crash, _, err = batch.step(out, commands, force, torque)
+        ep_return += np.where(alive, reward, 0.0)
         final_err = np.where(alive, err, final_err)
         newly = alive & crash
         crash_step[newly] = k + 1

@@ -268,12 +268,23 @@ class QuadBatch:
             cos[:, idx] = ob.last.cos
             zaxis[:, idx] = ob.last.rot[:, 2]
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def step(
+        self,
+        action: np.ndarray,
+        commands: bool = False,
+        force: np.ndarray | None = None,
+        torque: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Advance all drones one control step. action (N, M) in [−1, 1].
         Returns (obs, reward, terminated, truncated, pos_error_norm): `obs` is the batch's own
         array, the others are arrays the batch reuses, overwritten by the next step (copy what
-        must outlive it)."""
-        self._advance(action)
+        must outlive it).
+
+        For a controller that is not a policy (`studies.robustness`): commands=True takes `action`
+        as rotor commands ω/ω_max, held as they are (the plant clips them to [ω_min/ω_max, 1]);
+        force (N, 3), N world ENU, and torque (N, 3), N·m body FLU, in the state dtype, are added
+        for this step to the randomisation's external force and moment."""
+        self._advance(action, commands, force, torque)
         circle = self.cfg.task == "circle"
         s = self._state.rows
         sensed = s if self.noise is None else self.noise.estimate_rows(s, self._estimate_rows(self.n))
@@ -355,9 +366,9 @@ class QuadBatch:
         final_obs[idx] = last
         return t.reward, t.crash, truncated, done, (final_obs, *ended)
 
-    def _advance(self, action: np.ndarray) -> None:
+    def _advance(self, action: np.ndarray, commands: bool = False, force=None, torque=None) -> None:
         """The part of a step before the observation: actions to rotor commands, the plant, the step
-        count, the circle's target, the sensor noise processes."""
+        count, the circle's target, the sensor noise processes (`step` for the arguments)."""
         c = self.cfg
         s, w, u = self._sync_state(), self._rotor.sync(), self._command
         action = np.asarray(action)
@@ -365,13 +376,16 @@ class QuadBatch:
             raise ValueError(f"action must have shape ({self.n}, {u.shape[0]}), got {action.shape}")
         # dynamics.action_to_command: clip to [−1, 1], u_hover·√(1 + a), clip to [0, 1]
         np.copyto(u, action.T, casting="unsafe")  # cast first, as np.asarray(action, dtype) does
-        _clip(u, -1.0, 1.0, u)
-        np.add(u, self._one, u)
-        np.sqrt(u, u)
-        np.multiply(self.u_hover, u, u)
+        if not commands:
+            _clip(u, -1.0, 1.0, u)
+            np.add(u, self._one, u)
+            np.sqrt(u, u)
+            np.multiply(self.u_hover, u, u)
         # the last clip to [0, 1] is the Stepper's to [u_min, 1]: clip(clip(x, 0, 1), u_min, 1) is
         # clip(x, u_min, 1) for 0 ≤ u_min < 1, the same bits
-        force, torque = self.randomizer.external(self.steps) if self.randomizer is not None else (None, None)
+        if self.randomizer is not None:
+            f, t = self.randomizer.external(self.steps)
+            force, torque = _plus(f, force), _plus(t, torque)
         trig = self._trig if self._trig_valid else None
         self._stepper.step(s, w, u, self.params, c.dt, c.substeps, force=force, torque=torque, trig=trig)
         self._state.stale = self._rotor.stale = True
@@ -440,3 +454,8 @@ class QuadBatch:
     def circle_metrics(self) -> tuple[np.ndarray, np.ndarray]:
         """(radius error, tangential-speed error), each (N,), for the circle task."""
         return circle_errors(self.state, self.home, self.cfg.circle_radius, self.cfg.circle_speed)
+
+
+def _plus(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+    """a + b, where None is nothing to add."""
+    return b if a is None else a if b is None else a + b
