@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 import quadpilot.sitl_node as sitl_node
-from quadpilot.console import Parser, UsageError, check_output_path
+from quadpilot.console import Parser, UsageError, atomic_write, check_output_path
 from quadpilot.console import int_in as _int_in
 
 SHIPPED_HOVER = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"
@@ -544,7 +544,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
     sitl_node.print_summary(summary, policy_path)
     try:
         if args.json:
-            args.json.write_text(json.dumps(summary, indent=2) + "\n")
+            atomic_write(args.json, lambda f: f.write((json.dumps(summary, indent=2) + "\n").encode()))
     except OSError as e:
         print(f"quad-sitl: error: {args.json}: {e.strerror or e}", file=sys.stderr)
         return 1

@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from quadpilot.console import atomic_output, atomic_write
+
 MAX_FALLBACK_FRACTION = 0.10
 """More than this share of the steps flown by the fallback (or blind) fails the run (exit 1)."""
 MAX_TARGET_M = 1000.0
@@ -225,7 +227,7 @@ to line the node's replies up with a simulator's own timestamps."""
 
 
 def write_trace(log, path: Path) -> None:
-    with open(path, "w", newline="", encoding="utf-8") as f:
+    with atomic_output(path) as tmp, open(tmp, "x", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(TRACE_COLUMNS)
         for t, s, tgt, cmd, src, tick, lat, wall in zip(
@@ -276,7 +278,7 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
     s["home_source"] = "--home" if args.home is not None else "first valid position"
     print(summary_line(s))
     for flag, path, write in (
-        ("--json", args.json, lambda p: p.write_text(json.dumps(s, indent=2) + "\n", encoding="utf-8")),
+        ("--json", args.json, lambda p: atomic_write(p, lambda f: f.write((json.dumps(s, indent=2) + "\n").encode()))),
         ("--trace", args.trace, lambda p: write_trace(log, p)),
     ):
         if path is not None:

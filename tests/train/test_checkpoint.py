@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
+from quadpilot.console import atomic_write
 from quadpilot.train.checkpoint import (
     LATEST,
     PREVIOUS,
     SCHEMA,
     CheckpointError,
-    atomic_write,
     load_checkpoint,
     load_for_resume,
     ppo_from_checkpoint,

@@ -29,10 +29,11 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from quadpilot.console import atomic_write
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
 from quadpilot.core.state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
-from quadpilot.train.checkpoint import CheckpointError, TrainedPolicy, atomic_write, load_checkpoint
+from quadpilot.train.checkpoint import CheckpointError, TrainedPolicy, load_checkpoint
 from quadpilot.train.envs import QuadBatch
 
 ONNX_SCHEMA = "quadpilot.onnx/1"

@@ -121,26 +121,14 @@ class CCode:
 
     def write(self, directory) -> tuple:
         """Write policy.h and policy.c into `directory` (created), atomically; returns both paths."""
-        import os
-        import tempfile
         from pathlib import Path
 
+        from quadpilot.console import atomic_write
+
         directory = Path(directory)
-        directory.mkdir(parents=True, exist_ok=True)
         paths = []
         for name, text in ((HEADER_NAME, self.header), (SOURCE_NAME, self.source)):
-            fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=directory)
-            try:
-                with os.fdopen(fd, "w", encoding="ascii", newline="\n") as f:
-                    f.write(text)
-                    f.flush()
-                    os.fsync(f.fileno())
-                os.chmod(tmp, 0o644)
-                os.replace(tmp, directory / name)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
-            paths.append(directory / name)
+            paths.append(atomic_write(directory / name, lambda f, text=text: f.write(text.encode("ascii"))))
         return tuple(paths)
 
 

@@ -94,8 +94,8 @@ def plot_sweep(runs: list[Run], title: str, out_path: Path) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    from quadpilot.console import atomic_write
     from quadpilot.train.run import SUCCESS_BAR
-    from quadpilot.train.runlog import atomic_write
 
     fig = Figure(figsize=(9, 6), layout="constrained")
     FigureCanvasAgg(fig)
@@ -363,7 +363,7 @@ def render(directories: list[Path], figures: Path, doc: Path, argv: list[str]) -
 
 
 def cmd_report(args, argv: list[str]) -> int:
-    from quadpilot.train.runlog import atomic_write
+    from quadpilot.console import atomic_write
 
     doc, figures = Path(args.doc), Path(args.figures)
     section = render([Path(d) for d in args.sweeps], figures, doc, argv)

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from quadpilot.console import atomic_write
 from quadpilot.core import dynamics
 from quadpilot.core.mission import window_success, wrap_angle, yaw_errors
 from quadpilot.core.observation import build_observation
@@ -479,7 +480,7 @@ def write_model_eval(eval_path: Path, name: str, report: dict, policy) -> dict:
     if name in report.get("sitl", {}):
         data["sitl"] = {"backend": "numpy", "lockstep": True, "grid": report["sitl"][name]}
     data["robustness_command"] = report["command"]
-    Path(eval_path).write_text(json.dumps(data, indent=2, default=float) + "\n")
+    atomic_write(eval_path, lambda f: f.write((json.dumps(data, indent=2, default=float) + "\n").encode()))
     return data
 
 
@@ -558,12 +559,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"quad-sitl: no ONNX file for {', '.join(missing)}; skipped (quad-export it)", file=sys.stderr)
         report["sitl"] = {n: sitl_grid(path, cells, args.sitl_episodes) for n, path in onnx.items() if path.exists()}
         report["sitl_s"] = time.perf_counter() - t1
-    (args.out / "robustness.json").write_text(json.dumps(report, indent=1, default=float) + "\n")
+    text = json.dumps(report, indent=1, default=float) + "\n"
+    atomic_write(args.out / "robustness.json", lambda f: f.write(text.encode()))
     md = [f"## In-process grid ({args.episodes} episodes per cell)", "", grid_table(report["grid"]), ""]
     md += ["## Disturbance scenarios (nominal plant)", "", scenario_table(report["scenarios"]), ""]
     if args.sitl and report["sitl"]:
         md += [f"## quad-sitl grid ({args.sitl_episodes} episodes per cell)", "", grid_table(report["sitl"]), ""]
-    (args.out / "robustness.md").write_text("\n".join(md))
+    atomic_write(args.out / "robustness.md", lambda f: f.write("\n".join(md).encode()))
     policies = {c.name: c.policy for c in controllers if isinstance(c, PolicyController)}
     for spec in args.write_eval:
         name, _, path = spec.partition("=")

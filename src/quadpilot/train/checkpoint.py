@@ -12,7 +12,7 @@ Snapshots (`save_snapshot`, quad-train --snapshot-every) are `snapshots/policy-<
 format with the weights and normaliser of that moment and no optimizer, trainer or environment
 state (`trainer.Trainer.policy_dict`), so each loads, exports and flies like policy.pt.
 
-Writes are atomic (`runlog.atomic_write`: a temporary file in the same directory, flushed and
+Writes are atomic (`console.atomic_write`: a temporary file in the same directory, flushed and
 fsync'd, then `os.replace`, then the directory fsync'd), so a crash or `kill -9` leaves either the
 old file or the new one, never half of one. For resuming, `save_for_resume` keeps two generations
 (`checkpoint.pt` and `checkpoint.prev.pt`), and `load_for_resume` falls back to the older one if the
@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+from quadpilot.console import atomic_write
 
 from .checks import (
     MAX_BATCH,
@@ -53,11 +55,10 @@ from .checks import (
 from .envs import EnvConfig
 from .ppo import PPO, PPOConfig
 from .recurrent_ppo import DeterministicActor
-from .runlog import atomic_write
 from .sac import SAC
 from .trainer import LATEST, PREVIOUS, Trainer
 
-__all__ = ["MAX_BATCH", "MAX_ENVS", "MAX_OBS_HISTORY", "MAX_THREADS", "CheckpointError", "atomic_write"]
+__all__ = ["MAX_BATCH", "MAX_ENVS", "MAX_OBS_HISTORY", "MAX_THREADS", "CheckpointError"]
 
 POLICY = "policy.pt"
 SNAPSHOTS = "snapshots"
@@ -210,7 +211,7 @@ def save_untrained_policy(
 def save_checkpoint(
     path: str | os.PathLike, agent: Trainer, extra: dict | None = None, keep_previous: str | None = None
 ) -> Path:
-    """Write `agent` (and the JSON-able `extra`) to `path` atomically; see `runlog.atomic_write`."""
+    """Write `agent` (and the JSON-able `extra`) to `path` atomically; see `console.atomic_write`."""
     data = agent.checkpoint_dict(extra)
     return atomic_write(path, lambda f: torch.save(data, f), keep_previous)
 

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from quadpilot.console import atomic_write
+
 from .checks import CheckpointError, load_weights_only
-from .runlog import atomic_write
 
 ACT_DIM = 4
 REPLAY_DIR = "replay"

@@ -1,6 +1,6 @@
 """The files of a training run other than checkpoints: metrics.csv, JSON files, curves.png, the
-run directory's lock, and the atomic write every file of a run goes through (`atomic_write`:
-checkpoints, replay chunks and snapshots too).
+run directory's lock. Every file of a run (checkpoints, replay chunks and snapshots too) is written
+whole or not at all by `console.atomic_write`.
 
 metrics.csv has a fixed header (`COLUMNS` for PPO; an algorithm names its own, `sac.COLUMNS`) and
 one row per iteration (a PPO update), appended, flushed and fsync'd as soon as the iteration ends, so
@@ -20,12 +20,11 @@ import io
 import json
 import math
 import os
-import tempfile
-from collections.abc import Callable
 from pathlib import Path
-from typing import IO
 
 import numpy as np
+
+from quadpilot.console import atomic_write
 
 COLUMNS = (
     "global_step",
@@ -57,46 +56,6 @@ COLUMNS = (
 HEADER = ",".join(COLUMNS)
 LOCK = ".lock"
 """The run directory's lock file: empty but for the pid of the run holding it."""
-
-
-# --- atomic files ---------------------------------------------------------------------------
-
-
-def _fsync_dir(directory: Path) -> None:
-    """Make a rename durable: fsync the directory entry (POSIX; Windows cannot open directories)."""
-    if os.name == "nt":
-        return
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], None], keep_previous: str | None = None) -> Path:
-    """Write `path` atomically: `write(f)` into a temporary file beside it, flush, fsync,
-    optionally move the current file to `keep_previous` (a name in the same directory), then
-    `os.replace` the temporary file onto `path` and fsync the directory.
-
-    A crash leaves the old `path`, or (between the two renames) only `keep_previous`; never a torn
-    file. A leftover `.<name>.*.tmp` is harmless and may be deleted."""
-    path = Path(path)
-    directory = path.parent
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        if keep_previous is not None and path.exists():
-            os.replace(path, directory / keep_previous)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    _fsync_dir(directory)
-    return path
 
 
 # --- metrics.csv ----------------------------------------------------------------------------

@@ -38,9 +38,10 @@ from stable_baselines3 import PPO as SB3PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
+from quadpilot.console import atomic_write
+
 from .envs import EnvConfig, QuadVectorEnv
 from .ppo import PPOConfig
-from .runlog import atomic_write
 
 POLICY_FILE = "sb3_policy.pt"
 OBS_NORM_FILE = "obs_norm.npz"

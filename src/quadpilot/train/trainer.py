@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from quadpilot.console import atomic_write
 from quadpilot.core.state import YAW
 
 from .checks import (
@@ -52,7 +53,6 @@ from .checks import (
     tensor,
 )
 from .envs import EnvConfig
-from .runlog import atomic_write
 
 LATEST = "checkpoint.pt"
 PREVIOUS = "checkpoint.prev.pt"

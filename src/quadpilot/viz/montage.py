@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._files import atomic_output
+from quadpilot.console import atomic_output
+
 from ._mpl import new_figure
 from .geometry import arm_length_of
 from .plot import ERROR_FLOOR_M

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from quadpilot.console import atomic_output
 from quadpilot.core.dynamics import ATT, MOTOR_NAMES, VEL
 from quadpilot.core.mission import SUCCESS_TOLERANCE_M
 
-from ._files import atomic_output
 from ._mpl import new_figure
 from .trace import FlightTrace
 

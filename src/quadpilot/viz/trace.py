@@ -18,9 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from quadpilot.console import atomic_output
 from quadpilot.core.dynamics import NUM_MOTORS, POS, STATE_DIM
-
-from ._files import atomic_output
 
 NPZ_FORMAT = 1
 """Version of the `to_npz` layout; `from_npz` refuses other versions by name."""

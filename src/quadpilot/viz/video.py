@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from quadpilot.console import atomic_output
 from quadpilot.core.dynamics import ATT, POS
 
-from ._files import atomic_output
 from ._mpl import MATPLOTLIB_MISSING, VizUnavailable, new_figure
 from .geometry import arm_length_of, body_points, display_arm, rotor_discs
 from .plot import (
