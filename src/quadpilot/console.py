@@ -21,6 +21,7 @@ import math
 import os
 import re
 import secrets
+import sys
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -33,6 +34,26 @@ NEGATIVE_VALUE = re.compile(r"^-\.?\d")
 
 class UsageError(Exception):
     """A bad flag or flag value; the message is the one line the command prints (exit 2)."""
+
+
+class BadFile(Exception):
+    """A file that exists but cannot be used; the message is the one line the command prints (exit 1)."""
+
+
+def run_command(prog: str, body: Callable[[], int]) -> int:
+    """Run a command's `body` (parse, check, work; returns the exit code) with the errors every
+    command reports alike: a bad flag (`UsageError`) in one line and exit 2, a bad file (`BadFile`)
+    in one line and exit 1, --help's exit as it is."""
+    try:
+        return body()
+    except SystemExit as e:  # --help
+        return e.code if isinstance(e.code, int) else EXIT_OK
+    except UsageError as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return EXIT_BAD_FLAG
+    except BadFile as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return EXIT_BAD_FILE
 
 
 class Parser(argparse.ArgumentParser):

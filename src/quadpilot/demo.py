@@ -5,12 +5,11 @@ Exit codes: 0 done; 2 a bad flag (one line on stderr).
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
 
-from quadpilot.console import Parser, UsageError
+from quadpilot.console import Parser, run_command
 from quadpilot.console import int_in as _int_in
 
 MAX_ENVS = 1 << 16  # quad-train's bound (train.checks.MAX_ENVS): 65 536 drones are ~5 MB of state
@@ -24,14 +23,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--steps", type=_int_in(1, MAX_STEPS), default=1000, help="vector-environment steps to run")
     ap.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="random seed")
-    try:
-        args = ap.parse_args(argv)
-    except UsageError as e:
-        print(f"quad-demo: error: {e}", file=sys.stderr)
-        return 2
-    except SystemExit as e:  # --help
-        return e.code if isinstance(e.code, int) else 0
+    return run_command("quad-demo", lambda: _demo(ap.parse_args(argv)))
 
+
+def _demo(args) -> int:
     import gymnasium as gym
 
     import quadpilot.train  # noqa: F401  (registers the environments)

@@ -654,7 +654,8 @@ def test_negative_numbers_are_flag_values(driven):
 def test_console_scripts_answer_a_bad_flag_cold():
     """Each console script from the virtual environment, cold, with an unknown flag."""
     commands = [[str(BIN / name), "--no-such-flag"] for name in ENTRY if name != "montage"]
-    commands.append([sys.executable, "-X", "dev", "-m", "quadpilot.studies.montage", "--no-such-flag"])
+    for study in ("montage", "robustness", "sac_compare"):
+        commands.append([sys.executable, "-X", "dev", "-m", f"quadpilot.studies.{study}", "--no-such-flag"])
     with ThreadPoolExecutor(3) as pool:
         done = list(pool.map(lambda cmd: subprocess.run(cmd, capture_output=True, text=True, timeout=120), commands))
     for cmd, r in zip(commands, done, strict=True):

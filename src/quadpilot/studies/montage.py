@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import Parser, UsageError
+from quadpilot.console import BadFile, Parser, UsageError, run_command
 from quadpilot.train.cli import int_at_least
 
 
@@ -201,21 +201,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        args = build_parser().parse_args(argv)
-        return _montage(args)
-    except SystemExit as e:  # --help
-        return e.code if isinstance(e.code, int) else 0
-    except UsageError as e:
-        print(f"quadpilot.studies.montage: error: {e}", file=sys.stderr)
-        return 2
-    except BadFile as e:
-        print(f"quadpilot.studies.montage: error: {e}", file=sys.stderr)
-        return 1
-
-
-class BadFile(Exception):
-    """A snapshot that cannot be used: exit code 1, one line."""
+    return run_command("quadpilot.studies.montage", lambda: _montage(build_parser().parse_args(argv)))
 
 
 def _montage(args) -> int:

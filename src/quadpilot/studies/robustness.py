@@ -23,7 +23,6 @@ default drag coefficient when there is wind (`firmware_sim.sim.DEFAULT_WIND_DRAG
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
@@ -38,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_write
+from quadpilot.console import BadFile, Parser, UsageError, atomic_write, run_command
 from quadpilot.core import dynamics
 from quadpilot.core.mission import window_success, wrap_angle, yaw_errors
 from quadpilot.core.observation import build_observation
@@ -500,9 +499,7 @@ def _machine() -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m quadpilot.studies.robustness", description=__doc__.split("\n\n")[0], allow_abbrev=False
-    )
+    p = Parser(prog="python -m quadpilot.studies.robustness", description=__doc__.split("\n\n")[0], allow_abbrev=False)
     p.add_argument(
         "--policy",
         action="append",
@@ -523,23 +520,32 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=EVAL_JSON",
         help="Add policy NAME's results to a shipped model's eval.json (keys nominal, grid_in_process, sitl).",
     )
-    args = p.parse_args(argv)
+    return run_command("python -m quadpilot.studies.robustness", lambda: _study(p.parse_args(argv)))
 
-    from quadpilot.train.checkpoint import load_policy
+
+def _study(args) -> int:
+    from quadpilot.train.checkpoint import CheckpointError, load_policy
 
     controllers = []
     onnx = {}
     for spec in args.policy:
         name, _, path = spec.partition("=")
         if not path:
-            p.error(f"--policy wants NAME=PATH, got {spec!r}")
-        controllers.append(PolicyController(load_policy(path), name))
+            raise UsageError(f"--policy wants NAME=PATH, got {spec!r}")
+        try:
+            controllers.append(PolicyController(load_policy(path), name))
+        except CheckpointError as e:
+            raise BadFile(f"--policy {name}: {e}") from None
         onnx[name] = Path(path).with_suffix(".onnx")
     cfg = hover_config()
     if args.fallback:
         controllers.append(FallbackBank(cfg.params, cfg.dt, heading_frame=cfg.layout.heading_frame))
     if not controllers:
-        p.error("nothing to measure: give --policy and/or --fallback")
+        raise UsageError("nothing to measure: give --policy and/or --fallback")
+    named = {c.name for c in controllers if isinstance(c, PolicyController)}
+    for spec in args.write_eval:  # checked before the work, not after it
+        if spec.partition("=")[0] not in named:
+            raise UsageError(f"--write-eval {spec!r}: no --policy named {spec.partition('=')[0]!r}")
     args.out.mkdir(parents=True, exist_ok=True)
     cells = grid()
     report: dict = {
@@ -569,8 +575,6 @@ def main(argv: list[str] | None = None) -> int:
     policies = {c.name: c.policy for c in controllers if isinstance(c, PolicyController)}
     for spec in args.write_eval:
         name, _, path = spec.partition("=")
-        if name not in policies:
-            p.error(f"--write-eval {spec!r}: no --policy named {name!r}")
         write_model_eval(Path(path), name, report, policies[name])
     print("\n".join(md))
     return 0

@@ -12,7 +12,6 @@ time in either trainer). Prints a markdown table.
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import math
@@ -20,6 +19,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+from quadpilot.console import BadFile, Parser, UsageError, run_command
 
 
 def _read(run: Path) -> dict:
@@ -157,15 +158,24 @@ def plot(runs: list[dict], png: Path, title: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m quadpilot.studies.sac_compare", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="python -m quadpilot.studies.sac_compare", description=__doc__.split("\n\n")[0])
     p.add_argument("--ppo", nargs="*", type=Path, default=[], help="run directories of quad-train (PPO)")
     p.add_argument("--sac", nargs="*", type=Path, default=[], help="run directories of quad-train --algo sac")
     p.add_argument("--png", type=Path, help="write the learning-curve figure here")
     p.add_argument("--title", default="hover: periodic deterministic evaluation (100 episodes), one line per seed")
-    args = p.parse_args(argv)
-    runs = [_read(r) for r in [*args.ppo, *args.sac]]
-    if not runs:
-        p.error("give --ppo and/or --sac run directories")
+    return run_command("python -m quadpilot.studies.sac_compare", lambda: _compare(p.parse_args(argv)))
+
+
+def _compare(args) -> int:
+    if not (args.ppo or args.sac):
+        raise UsageError("give --ppo and/or --sac run directories")
+    runs = []
+    for run in [*args.ppo, *args.sac]:
+        try:
+            runs.append(_read(run))
+        except (OSError, ValueError, KeyError, TypeError) as e:  # not a finished quad-train run directory
+            why = e.strerror if isinstance(e, OSError) and e.strerror else f"{type(e).__name__}: {e}"
+            raise BadFile(f"{run}: {why}; expected a finished quad-train run directory") from None
     print(table(runs))
     if args.png:
         out = plot(runs, args.png, args.title)
