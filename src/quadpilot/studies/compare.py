@@ -117,16 +117,6 @@ def _parse_list(kind, choices=None):
     return parse
 
 
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -146,6 +136,7 @@ def plan(args) -> list[RunSpec]:
 
 
 def cmd_run(args, argv: list[str]) -> int:
+    from quadpilot.train.run import cpu_model
     from quadpilot.train.runlog import write_json
 
     ray = _import_ray() if args.engine == "ray" else None  # before anything is written
@@ -175,7 +166,7 @@ def cmd_run(args, argv: list[str]) -> int:
         "engine": args.engine,
         "nice": os.nice(0),
         "command": shlex.join(["quad-compare", *argv]),
-        "machine": {"cpu": _cpu_model(), "cores": os.cpu_count(), "python": platform.python_version()},
+        "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version()},
         "started": _now(),
         "runs": [r for r in previous.get("runs", []) if any(r["dir"] == s.out for s in done)],
     }

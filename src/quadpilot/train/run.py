@@ -59,17 +59,22 @@ RUN_FILES = (
 SIGNALS = ("SIGINT", "SIGTERM")
 
 
+def cpu_model() -> str:
+    """The CPU's model name (Linux's /proc/cpuinfo), else what `platform` knows: what every result
+    file records as its machine."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            name = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
+    except OSError:
+        name = None
+    return name or platform.processor() or platform.machine() or "unknown"
+
+
 def machine() -> dict:
     """What bit-identical retraining depends on besides the code and the command: the CPU (torch's
     BLAS and vectorised kernels pick their instructions from it), the thread count is in the
     command, and the numerical libraries' versions."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    return {"cpu": cpu, "torch": torch.__version__, "numpy": np.__version__}
+    return {"cpu": cpu_model(), "torch": torch.__version__, "numpy": np.__version__}
 
 
 def command(argv: list[str]) -> str:
