@@ -295,9 +295,10 @@ class Stepper:
         self.acc_ext, self.mom_ext = rows(3), rows(3)  # external force / m and moment, in the state dtype
         self.t = rows(3)
         # the rows as views made once (making a view costs a fraction of a microsecond)
-        self._f_rows, self._wr_rows = tuple(self.f), tuple(self.wrench)
+        self._f_rows, self._wr_rows, self._acc_rows = tuple(self.f), tuple(self.wrench), tuple(self.acc)
         self._rows = (*self.sin, *self.cos, *self.mid, *self.gyro, *self.t, *self.inc, *self.zaxis)
         self._state_views: tuple = (None, None)
+        self._constants: tuple = (None, None, None, None)  # (params, h, _Derived, _StepperConstants) of the last step
 
     def _views(self, s: np.ndarray) -> tuple:
         """The views of the state rows the substep reads, made once per state array."""
@@ -319,10 +320,11 @@ class Stepper:
         armed: np.ndarray | None = None,
     ) -> None:
         """Advance N drones by `dt` in place: s (12, N) state rows (`core.state` order), w (M, N)
-        rotor rows; u (M, N) commanded speeds, clipped here in place to [ω_min/ω_max, 1] as `step`
-        clips them; force and torque (N, 3) as `step` takes them (None: none). s, w and u in the
-        dtype this Stepper was made for. trig: None, or (sin, cos, zaxis) of the state s holds now,
-        each (3, N): sin and cos of roll, pitch, yaw, and (R02, R12, R22) as
+        rotor rows; u (M, N) commanded speeds, clipped to [ω_min/ω_max, 1] as `step` clips them, in
+        place with a motor lag, else into w (no lag: w = u from the first substep on); force and
+        torque (N, 3) as `step` takes them (None: none). s, w and u in the dtype this Stepper was
+        made for. trig: None, or (sin, cos, zaxis) of the state s holds now, each (3, N) or its
+        three rows: sin and cos of roll, pitch, yaw, and (R02, R12, R22) as
         `frames.euler_to_rotmat_rows` computes them (the same operations as `_substep`'s
         acceleration terms), used for the first substep instead of computing them again.
         armed: None (every drone armed), or (N,) bool: False turns a drone's motors off, its
@@ -333,13 +335,16 @@ class Stepper:
                 f"state, rotor and command rows must have shapes ({STATE_DIM}, {n}), ({m}, {n}) and ({m}, {n}), "
                 f"got {s.shape}, {w.shape} and {u.shape}"
             )
-        if params.n != n or params.n_rotors != m:
-            raise ValueError(f"params hold {params.n} drones of {params.n_rotors} rotors, expected {n} of {m}")
         h = dt / substeps
-        d = _derived(params, h, self.dtype)
-        k = d.__dict__.get("stepper")
-        if k is None:  # what the in-place substep adds to the derived constants, once per batch and h
-            k = d.stepper = _StepperConstants(d, h, self.dtype, m)
+        last_params, last_h, d, k = self._constants
+        if params is not last_params or h != last_h:  # a new batch of parameters (or step length)
+            if params.n != n or params.n_rotors != m:  # (checked once: a ParamBatch does not change)
+                raise ValueError(f"params hold {params.n} drones of {params.n_rotors} rotors, expected {n} of {m}")
+            d = _derived(params, h, self.dtype)
+            k = d.__dict__.get("stepper")
+            if k is None:  # what the in-place substep adds to the derived constants, once per batch and h
+                k = d.stepper = _StepperConstants(d, h, self.dtype, m)
+            self._constants = (params, h, d, k)
         acc = mom = None
         if force is not None:  # `_external`: force/m, computed in the pair's type, cast to the state dtype
             force = np.asarray(force)
@@ -354,12 +359,13 @@ class Stepper:
                 raise ValueError(f"torque must have shape ({n}, 3) (N·m, body FLU), got {torque.shape}")
             mom = self.mom_ext
             np.copyto(mom, torque.T, casting="unsafe")
-        _clip(u, k.u_min, 1.0, u)
+        clipped = u if d.lag else w  # without a lag the rotor speed is the clipped command (w = u)
+        _clip(u, k.u_min, 1.0, clipped)
         if armed is not None:  # motors off command 0, below any idle speed (module docstring)
             armed = np.asarray(armed)
             if armed.shape != (n,):
                 raise ValueError(f"armed must have shape ({n},), got {armed.shape}")
-            np.copyto(u, 0.0, where=~armed.astype(bool))
+            np.copyto(clipped, 0.0, where=~armed.astype(bool))
         for i in range(substeps):
             self._substep(s, w, u, d, k, acc, mom, trig if i == 0 else None)
 
@@ -368,18 +374,15 @@ class Stepper:
         mul, add, sub = np.multiply, np.add, np.subtract
         pos, vel, att, rates, psi, p, q, r = self._views(s)
         sphi, sth, spsi, cphi, cth, cpsi, pm, qm, rm, g0, g1, g2, t1, t2, t3, i0, i1, i2, z0, z1, z2 = self._rows
-        if d.lag:  # w = ui + decay·(wi − ui)
+        if d.lag:  # w = ui + decay·(wi − ui); else w = u, clipped into w by `step`
             sub(w, u, w)
             mul(k.decay, w, w)
             add(u, w, w)
-        else:
-            np.copyto(w, u)
         f = self.f  # f = f_max·wi·wi
         mul(k.f_max, w, f)
         mul(f, w, f)
-        wr = self.wrench  # thrust, tx, ty, tz = wrench(f)
-        k.wrench_into(self._f_rows, self._wr_rows, t1)
-        torque = wr[1:4]
+        k.wrench_into(self._f_rows, self._wr_rows, t1)  # thrust, tx, ty, tz = wrench(f)
+        torque = self.wrench[1:4]
         if mom is not None:  # tx, ty, tz = tx + m_x, ...
             add(torque, mom, torque)
 
@@ -400,14 +403,12 @@ class Stepper:
         add(rates, rates1, mid)
         mul(k.half, mid, mid)
 
-        if trig is None:  # sin and cos of φ, θ, ψ
-            sn, cs, za = self.sin, self.cos, None
-            np.sin(att, sn)
-            np.cos(att, cs)
+        if trig is None:  # sin and cos of φ, θ, ψ (sphi … cpsi are the rows of self.sin and self.cos)
+            np.sin(att, self.sin)
+            np.cos(att, self.cos)
+            za = None
         else:
-            sn, cs, za = trig
-        sphi, sth, spsi = sn
-        cphi, cth, cpsi = cs
+            (sphi, sth, spsi), (cphi, cth, cpsi), za = trig
 
         qs = t3
         mul(qm, sphi, qs)  # qs_rc = qm·sphi + rm·cphi
@@ -432,7 +433,7 @@ class Stepper:
 
         # ax, ay, az = t_m·(cpsi·sth·cphi + spsi·sphi), t_m·(spsi·sth·cphi − cpsi·sphi), t_m·(cth·cphi) − g
         if za is None:
-            za = self.zaxis
+            za = (z0, z1, z2)
             mul(cpsi, sth, t1)
             mul(t1, cphi, t1)
             mul(spsi, sphi, t2)
@@ -443,9 +444,9 @@ class Stepper:
             sub(t1, t2, z1)
             mul(cth, cphi, z2)
         x = self.acc
-        mul(wr[0], d.inv_m, t1)  # t_m = thrust·inv_m
-        for i in range(3):  # row by row: a broadcast (N,) operand would make NumPy allocate a buffer
-            mul(t1, za[i], x[i])
+        mul(self._wr_rows[0], d.inv_m, t1)  # t_m = thrust·inv_m
+        for xi, zi in zip(self._acc_rows, za, strict=True):  # by row: a broadcast (N,) operand allocates
+            mul(t1, zi, xi)
         sub(x[2], d.g, x[2])
         blk = self.block
         if d.drag:  # ax = ax − drag_over_m·vx, ...

@@ -27,55 +27,49 @@ def euler_to_rotmat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.
     return out
 
 
-def euler_to_rotmat_rows(sin: np.ndarray, cos: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
+def euler_to_rotmat_rows(sin, cos, out, tmp: np.ndarray):
     """`euler_to_rotmat` in place: sin and cos (3, N) of roll, pitch and yaw, out (3, 3, N) with
-    out[j, i] = R_ji, tmp an (N,) scratch row; the same operations in the same order, so the same bits."""
+    out[j][i] = R_ji, tmp an (N,) scratch row; the same operations in the same order, so the same bits.
+    sin, cos and out may also be their rows already taken apart (tuples of (N,) rows, and of such
+    tuples): a caller that builds every step keeps them so, since taking a row of an array costs
+    about a fifth of what a NumPy call on a small row costs."""
     sr, sp, sy = sin
     cr, cp, cy = cos
-    np.multiply(cy, cp, out[0, 0])
-    np.multiply(cy, sp, out[0, 1])  # cy·sp, then ·sr − sy·cr
-    np.multiply(out[0, 1], cr, out[0, 2])  # cy·sp·cr + sy·sr
-    np.multiply(out[0, 1], sr, out[0, 1])
-    np.multiply(sy, cr, tmp)
-    np.subtract(out[0, 1], tmp, out[0, 1])
-    np.multiply(sy, sr, tmp)
-    np.add(out[0, 2], tmp, out[0, 2])
-    np.multiply(sy, cp, out[1, 0])
-    np.multiply(sy, sp, out[1, 1])  # sy·sp, then ·sr + cy·cr
-    np.multiply(out[1, 1], cr, out[1, 2])  # sy·sp·cr − cy·sr
-    np.multiply(out[1, 1], sr, out[1, 1])
-    np.multiply(cy, cr, tmp)
-    np.add(out[1, 1], tmp, out[1, 1])
-    np.multiply(cy, sr, tmp)
-    np.subtract(out[1, 2], tmp, out[1, 2])
-    np.negative(sp, out[2, 0])
-    np.multiply(cp, sr, out[2, 1])
-    np.multiply(cp, cr, out[2, 2])
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = out
+    mul = np.multiply
+    mul(cy, cp, r00)
+    mul(cy, sp, r01)  # cy·sp, then ·sr − sy·cr
+    mul(r01, cr, r02)  # cy·sp·cr + sy·sr
+    mul(r01, sr, r01)
+    mul(sy, cr, tmp)
+    np.subtract(r01, tmp, r01)
+    mul(sy, sr, tmp)
+    np.add(r02, tmp, r02)
+    mul(sy, cp, r10)
+    mul(sy, sp, r11)  # sy·sp, then ·sr + cy·cr
+    mul(r11, cr, r12)  # sy·sp·cr − cy·sr
+    mul(r11, sr, r11)
+    mul(cy, cr, tmp)
+    np.add(r11, tmp, r11)
+    mul(cy, sr, tmp)
+    np.subtract(r12, tmp, r12)
+    np.negative(sp, r20)
+    mul(cp, sr, r21)
+    mul(cp, cr, r22)
     return out
 
 
-def world_to_body_rows(rot: np.ndarray, v: np.ndarray, out, block: np.ndarray, tmp: np.ndarray):
+def world_to_body_rows(rot: np.ndarray, v: np.ndarray, out: np.ndarray, *_scratch) -> np.ndarray:
     """`world_to_body` in place: rot (3, 3, N) as `euler_to_rotmat_rows` writes it, v (3, N) world
-    vectors (each row may be strided), block and tmp (3, N) contiguous scratch in the rotation's
-    dtype. out: a (3, N) array, or pieces [(rows, view)] that together take the three components
-    (rows indexes the (3, N) result).
+    vectors, out (3, N); the rows of v and out may lie apart (views of larger row blocks).
 
-    np.einsum("nji,nj->ni") sums the three products of each component in order onto a zero:
-    ((0 + R_0i·v_0) + R_1i·v_1) + R_2i·v_2, the zero turning a −0 product into +0; this does the
-    same (tests/core/test_inplace_equivalence.py compares the two bit for bit)."""
-    for i in range(3):  # row by row: a broadcast (N,) operand would make NumPy allocate a buffer
-        np.multiply(rot[0, i], v[0], block[i])
-    np.add(block, block.dtype.type(0.0), block)
-    for i in range(3):
-        np.multiply(rot[1, i], v[1], tmp[i])
-    np.add(block, tmp, block)
-    for i in range(3):
-        np.multiply(rot[2, i], v[2], tmp[i])
-    if isinstance(out, np.ndarray):
-        return np.add(block, tmp, out)
-    for rows, view in out:
-        np.add(block[rows], tmp[rows], view)
-    return out
+    `world_to_body` is np.einsum("nji,nj->ni"), which sums the three products of each component in
+    order onto a zero: ((0 + R_0i·v_0) + R_1i·v_1) + R_2i·v_2, the zero turning a −0 product into
+    +0. The same np.einsum over the rows computes the same sums (tests/core/test_inplace_equivalence.py
+    compares the two bit for bit, −0 products included) in one call, and it reads and writes rows
+    that lie apart without a buffer, where a ufunc given such a 2-D operand allocates one. (The
+    scratch arguments of the earlier row-by-row form are accepted and not needed.)"""
+    return np.einsum("jin,jn->in", rot, v, out=out)
 
 
 def rotmat_to_euler(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -154,14 +154,17 @@ class ObservationBuilder:
     strided 2-D operand makes it allocate a buffer of 8192 elements and loop per row. So every
     operation here is over such blocks or over single rows.
 
-    Why the detour through `fields` and `units`: an observation is a row of 18 (or 21) float32, and
-    NumPy writes a column of an (N, 18) array element by element, about 1 ns each, where a
-    contiguous ufunc takes a fifth of that. So each field is computed into a row of `fields`, two
-    rows at a time are interleaved into one row of 8-byte units (field 2g's four bytes, then
-    2g + 1's: two copies at a stride of 8 bytes), and the units are moved into `out` in one copy:
-    half the elements of moving the floats."""
+    Why the detour through `fields`: an observation is a row of 18 (or 21) float32, and NumPy
+    writes a column of an (N, 18) array element by element, about 1 ns each, where a contiguous
+    ufunc takes a fifth of that. So each field is computed into a row of `fields` (a row per call:
+    see below), and the rows are moved into `out` in one transposing copy, which reads the 18 rows
+    side by side. Those rows lie `_stride(k)` elements apart, k rounded up to 64 bytes and kept off
+    a multiple of 2 KiB: rows a multiple of 4 KiB apart (k = 1024, 2048, 4096 float32) all fall in
+    one set of the CPU's cache, which made that copy several times slower at N = 4096, and rows at
+    an odd 4-byte offset make it slower too. So `fields` is not one contiguous block: a ufunc writes
+    into it a row at a time (np.einsum and np.copyto take its blocks of rows without a buffer)."""
 
-    GROUPS = 11  # pairs of fields: 21 fields (the track layout) and one row to spare
+    FIELDS = 21  # the track layout's
 
     def __init__(self, n: int, dtype) -> None:
         self.n, self.dtype = int(n), np.dtype(dtype)
@@ -174,11 +177,10 @@ class ObservationBuilder:
             "block": flat(3),
             "tmp": flat(3),
             "heading": flat(3),
-            "fields": flat(2 * self.GROUPS, np.float32),
-            "units": flat(self.GROUPS, np.uint64),
+            "fields": np.zeros(self.FIELDS * _stride(self.n), np.float32),
         }
         if self.dtype != np.float32:  # fields computed in the state dtype, then cast in one copy
-            self._store["wide"] = flat(2 * self.GROUPS)
+            self._store["wide"] = flat(self.FIELDS)
         self._works: dict[int, _ObsWork] = {}
         self.last: _ObsWork | None = None
 
@@ -189,17 +191,27 @@ class ObservationBuilder:
         out,
         target_vel: np.ndarray | None = None,
         heading: np.ndarray | None = None,
+        target_rows: np.ndarray | None = None,
     ):
         """`build_observation(states, target_pos, target_vel, out, heading)` for the k ≤ n states
         whose rows are s (12, k) (contiguous rows); target_pos and target_vel (k, 3), heading (k,)
         in the state dtype or None. out: float32 (k, 18) or (k, 21), or a sequence of such arrays
-        that take the k observations in turn (rows 0..k1 − 1 into the first, and so on)."""
+        that take the k observations in turn (rows 0..k1 − 1 into the first, and so on).
+        target_rows: the target positions as rows (3, k) (a contiguous block), for a caller that
+        keeps them so (the batches), instead of target_pos (then None): the same subtraction as one
+        call over contiguous operands, where a column of a (k, 3) array is read at a stride."""
         k = s.shape[1] if s.ndim == 2 else -1
         dim = (HOVER_LAYOUT if target_vel is None else TRACK_LAYOUT).dim
         if s.shape != (STATE_DIM, k) or not 0 < k <= self.n:
             raise ValueError(f"state rows must have shape ({STATE_DIM}, k), 0 < k ≤ {self.n}, got {s.shape}")
         parts = (out,) if isinstance(out, np.ndarray) else tuple(out)
-        if sum(p.shape[0] for p in parts) != k or any(p.shape[1:] != (dim,) or p.dtype != np.float32 for p in parts):
+        rows = 0
+        for p in parts:  # (a loop: a generator's frames cost more than the checks)
+            if p.shape[1:] != (dim,) or p.dtype != np.float32:
+                rows = -1
+                break
+            rows += p.shape[0]
+        if rows != k:
             raise ValueError(f"out must be float32 of {k} rows of {dim}, got {[(p.dtype, p.shape) for p in parts]}")
         w = self._works.get(k)
         if w is None:  # a batch builds a few sizes (all, all + the drones reset): keep their views
@@ -207,42 +219,65 @@ class ObservationBuilder:
                 self._works.clear()
             w = self._works[k] = _ObsWork(self._store, k)
         self.last = w
-        rot, v, tmp, blk, f = w.rot, w.vec, w.tmp, w.block, w.wide
-        np.sin(s[ATT], w.sin)
-        np.cos(s[ATT], w.cos)
-        euler_to_rotmat_rows(w.sin, w.cos, rot, w.tmp0)
-        target_pos = np.asarray(target_pos)
-        for i, row in enumerate(POS_ROWS):  # state[:, POS] − target_pos
-            np.subtract(s[row], target_pos[:, i], v[i])
-        world_to_body_rows(rot, v, f[0:3], blk, tmp)
-        world_to_body_rows(rot, s[VEL], f[3:6], blk, tmp)
-        r0, r1, r2 = w.rot_rows
+        if w.state is not s:  # the views of the state read below, made once per state array
+            w.state, w.state_views = s, (s[ATT], s[POS], s[VEL], s[RATES])
+        att, pos, vel, rates = w.state_views
+        rot, v, wide = w.rot, w.vec, w.wide
+        np.sin(att, w.sin)
+        np.cos(att, w.cos)
+        # with the rows as views made once (rot_rows[j][i] = R_ji), see `euler_to_rotmat_rows`
+        euler_to_rotmat_rows(w.sin_rows, w.cos_rows, w.rot_rows, w.tmp0)
+        if target_rows is not None:  # state[:, POS] − target_pos, elementwise: the same bits in any layout
+            np.subtract(pos, target_rows, v)
+        else:
+            target_pos = np.asarray(target_pos)
+            for i, row in enumerate(POS_ROWS):
+                np.subtract(s[row], target_pos[:, i], v[i])
+        world_to_body_rows(rot, v, wide[0:3])
+        world_to_body_rows(rot, vel, wide[3:6])
+        # the fields that are plain copies in `build_observation` (an assignment) are copied: copyto
+        # moves the same bits, at a third of np.positive's cost
         if heading is None:
-            np.positive(rot, f[6:15].reshape(3, 3, k))
+            np.copyto(wide[6:15], rot.reshape(9, k))  # (rot is contiguous: a view)
         else:  # Rz(−ψ_cmd)·R: rows c·R0 + s·R1 and (−s)·R0 + c·R1, then R2
             c, sn, neg = w.heading_rows
+            (r0, r1, _), (b, t), f = w.rot_rows, w.scratch_rows, w.field_rows
             np.cos(heading, c)
             np.sin(heading, sn)
             np.negative(sn, neg)
             for i in range(3):
-                np.multiply(c, r0[i], blk[i])
-                np.multiply(sn, r1[i], tmp[i])
-            np.add(blk, tmp, f[6:9])
+                np.multiply(c, r0[i], b[i])
+                np.multiply(sn, r1[i], t[i])
+            for i, row in f[6:9]:
+                np.add(b[i], t[i], row)
             for i in range(3):
-                np.multiply(neg, r0[i], blk[i])
-                np.multiply(c, r1[i], tmp[i])
-            np.add(blk, tmp, f[9:12])
-            np.positive(r2, f[12:15])
-        np.positive(s[RATES], f[15:18])
+                np.multiply(neg, r0[i], b[i])
+                np.multiply(c, r1[i], t[i])
+            for i, row in f[9:12]:
+                np.add(b[i], t[i], row)
+            np.copyto(wide[12:15], rot[2])
+        np.copyto(wide[15:18], rates)
         if target_vel is not None:
-            world_to_body_rows(rot, np.asarray(target_vel).T, f[18:21], blk, tmp)
-        if f is not w.fields:  # float64 state: the observation is float32, cast as an assignment casts
-            np.copyto(w.fields[:dim], f[:dim], casting="same_kind")
-        _merge_and_move(w, dim, parts)
+            world_to_body_rows(rot, np.asarray(target_vel).T, wide[18:21])
+        fields = w.fields
+        if wide is not fields:  # float64 state: the observation is float32, cast as an assignment casts
+            np.copyto(fields[:dim], wide[:dim], casting="same_kind")
+        start = 0
+        for part in parts:  # the bits of each field moved into the observations' columns
+            stop = start + part.shape[0]
+            np.copyto(part, fields[:dim, start:stop].T)
+            start = stop
         return out
 
 
 POS_ROWS = tuple(range(POS.start, POS.stop))
+
+
+def _stride(k: int) -> int:
+    """The distance between the rows of `fields` for k states: k rounded up to 16 float32 (64 bytes),
+    and 16 more if that is a multiple of 512 (2 KiB), see `ObservationBuilder`."""
+    stride = -(-k // 16) * 16
+    return stride + 16 if stride % 512 == 0 else stride
 
 
 class _ObsWork:
@@ -254,33 +289,25 @@ class _ObsWork:
 
         self.sin, self.cos, self.vec, self.block, self.tmp = (rows(a, 3) for a in ("sin", "cos", "vec", "block", "tmp"))
         self.rot = rows("rot", 9).reshape(3, 3, k)
-        self.fields = rows("fields", 2 * ObservationBuilder.GROUPS)  # (22, k) float32
-        self.wide = rows("wide", 2 * ObservationBuilder.GROUPS) if "wide" in store else self.fields
+        fields = ObservationBuilder.FIELDS
+        # (21, k) float32 rows `_stride(k)` apart: not one block, written a row at a time
+        self.fields = store["fields"][: fields * _stride(k)].reshape(fields, -1)[:, :k]
+        # the rows the fields are computed in: `fields` itself, or contiguous rows of the state dtype
+        self.wide = rows("wide", fields) if "wide" in store else self.fields
+        # (i, row) of each field, i its place in its 3-vector
+        self.field_rows = tuple((i % 3, row) for i, row in enumerate(self.wide))
         self.tmp0 = self.tmp[0]
-        self.rot_rows = tuple(self.rot)
+        # rows taken apart once: taking a row of an array costs about a fifth of a small NumPy call
+        self.rot_rows = tuple(tuple(r) for r in self.rot)  # rot_rows[j][i] = R_ji
+        self.sin_rows, self.cos_rows = tuple(self.sin), tuple(self.cos)
+        self.scratch_rows = (tuple(self.block), tuple(self.tmp))
         self.heading_rows = tuple(rows("heading", 3))
-        bits = self.fields.view(np.uint32)
-        self.first, self.second = bits[0::2], bits[1::2]  # fields 2g and 2g + 1, (G, k)
-        self.units = rows("units", ObservationBuilder.GROUPS)  # (G, k) 8-byte units
-        halves = self.units.view(np.uint32).reshape(ObservationBuilder.GROUPS, k, 2)
-        self.low, self.high = halves[..., 0], halves[..., 1]  # the first and last 4 bytes of each unit
+        self.state, self.state_views = None, ()  # the state rows last built from, and views of them
+        self._trig: tuple = (0, ())
 
-
-def _merge_and_move(w: _ObsWork, dim: int, parts: tuple) -> None:
-    """Each pair of field rows (2g, 2g + 1) merged into one row of 8-byte units (field 2g's bytes
-    first, as in an observation row), moved into the observation rows of `parts`: bit copies, the
-    same bytes as writing the float32 one by one."""
-    pairs = dim // 2
-    units = w.units[:pairs]
-    np.copyto(w.low[:pairs], w.first[:pairs])
-    np.copyto(w.high[:pairs], w.second[:pairs])
-    start = 0
-    for out in parts:
-        stop = start + out.shape[0]
-        if out.flags.c_contiguous:
-            np.copyto(out[:, : 2 * pairs].view(np.uint64), units[:, start:stop].T)
-            if dim % 2:
-                np.copyto(out[:, dim - 1], w.fields[dim - 1, start:stop])
-        else:  # pragma: no cover - the batches' observations are C-contiguous
-            np.copyto(out, w.fields[:dim, start:stop].T)
-        start = stop
+    def trig(self, n: int) -> tuple:
+        """The rows of sin, cos and the thrust axis (R02, R12, R22) of the first n states of the last
+        build, three tuples of three rows, what `dynamics.Stepper.step` takes as `trig` (made once)."""
+        if self._trig[0] != n:
+            self._trig = (n, (tuple(self.sin[:, :n]), tuple(self.cos[:, :n]), tuple(self.rot[:, 2, :n])))
+        return self._trig[1]

@@ -148,14 +148,16 @@ def circle_reward(
     )
 
 
-def einsum_dot3_rows(a: np.ndarray, out: np.ndarray, squares: np.ndarray) -> np.ndarray:
-    """np.einsum("ij,ij->i", a.T, a.T) in place for rows a (3, N), into out (N,); squares (3, N) scratch.
+def einsum_dot3_rows(a: np.ndarray, out: np.ndarray, squares: np.ndarray, rows: tuple | None = None) -> np.ndarray:
+    """np.einsum("ij,ij->i", a.T, a.T) in place for rows a (3, N), into out (N,); squares (3, N) scratch,
+    rows: its three rows if the caller keeps them (taking an array apart costs more than a NumPy
+    call on a small row).
 
     The order matters for the last bit, and np.einsum sums the squares of a float32 triple in order,
     (x² + y²) + z², and of a float64 one as (x² + z²) + y² (two SIMD lanes); this does the same
     (tests/core/test_inplace_equivalence.py compares the two bit for bit)."""
     np.multiply(a, a, squares)
-    x2, y2, z2 = squares
+    x2, y2, z2 = squares if rows is None else rows
     if a.dtype == np.float64:
         np.add(x2, z2, out)
         return np.add(out, y2, out)
@@ -173,7 +175,9 @@ class StepTerms:
         pos_err (3, N) rows of state[:, POS] − target; dist_sq (N,) its squared norm; err (N,) its norm;
         crash (N,) bool; rate (N,) |yaw rate|; head (N,) |heading error|; reward (N,).
 
-    They are overwritten by the next `compute`."""
+    They are overwritten by the next `compute`; err and rate only by a `compute` asked for them
+    (`norms`): nothing else needs them, and a vector environment's step asks only while a success
+    window is open."""
 
     def __init__(self, n: int, dtype) -> None:
         self.n, self.dtype = int(n), np.dtype(dtype)
@@ -184,6 +188,8 @@ class StepTerms:
         self.rates_sq, self.over, self.g, self.t, self.u = rows(5)
         self.crash, self.flag, self.flags = np.empty(self.n, bool), np.empty(self.n, bool), np.empty((2, self.n), bool)
         self._consts: tuple | None = None  # (cfg, its numbers in the state dtype)
+        # rows as views made once (taking a row of an array costs about a fifth of a small NumPy call)
+        self._squares_rows, self._tilt_rows, self._flag_rows = tuple(self.squares), tuple(self.tilt), tuple(self.flags)
         self._state_views: tuple = (None, None)  # (state rows, the views of them read), made once
 
     def _numbers(self, cfg: RewardConfig) -> dict:
@@ -213,6 +219,9 @@ class StepTerms:
                     "two_pi": t(2.0 * math.pi),
                     "zero": t(0.0),
                     "rho_min": t(1e-6),
+                    # the limits stay Python floats, as `crashed` compares with them
+                    "max_tilt": cfg.max_tilt,
+                    "max_distance_sq": cfg.max_distance**2,
                 },
             )
         return self._consts[1]
@@ -226,46 +235,57 @@ class StepTerms:
         pay_heading: bool = True,
         circle: tuple | None = None,
         pos_err: np.ndarray | None = None,
+        target_rows: np.ndarray | None = None,
+        norms: bool = True,
     ) -> None:
         """s (12, N) true state rows; target (N, 3) m; heading (N,) the commanded heading in rad;
         pay_heading: the reward has the heading term (False: version 1); circle (center (3,), radius,
         speed) for the circle reward, None for hover's. pos_err: the rows s[POS] − target.T if the
-        caller has them (an `ObservationBuilder` of the true state does), else None."""
+        caller has them (an `ObservationBuilder` of the true state does), else None. target_rows:
+        target.T as a contiguous (3, N) block if the caller keeps it so (then target may be None):
+        one subtraction over contiguous rows instead of three reading a (N, 3) array's columns at a
+        stride, the same bits. norms: compute `err` and `rate` (False leaves them as they were)."""
         mul, add, sub = np.multiply, np.add, np.subtract
         k = self._numbers(cfg)
         if self._state_views[0] is not s:
             self._state_views = (s, (s[POS], s[ROLL_PITCH], s[RATES], s[X], s[Y], s[Z], s[VX], s[VY], s[YAW], s[R]))
         pos, tilt_rows, rates, x, y, z, vx, vy, yaw, r_rate = self._state_views[1]
         d2, crash, flag, t, g = self.dist_sq, self.crash, self.flag, self.t, self.g
-        if pos_err is None:
+        if pos_err is not None:
+            e = pos_err
+        elif target_rows is not None:
+            e = self.pos_err
+            sub(pos, target_rows, e)
+        else:
             e, target = self.pos_err, np.asarray(target)
             for i in range(3):  # by column: a transposed (3, N) operand would make NumPy allocate a buffer
                 sub(pos[i], target[:, i], e[i])
-        else:
-            e = pos_err
-        einsum_dot3_rows(e, d2, self.squares)
-        np.sqrt(d2, self.err)
+        einsum_dot3_rows(e, d2, self.squares, self._squares_rows)
+        if norms:
+            np.sqrt(d2, self.err)
         tilt, flags = self.tilt, self.flags
         np.abs(tilt_rows, tilt)
         # crashed: (z < 0) | (|roll| > max_tilt) | (|pitch| > max_tilt) | ~(dist_sq <= max_distance²)
         np.less(z, 0.0, crash)
-        np.greater(tilt, cfg.max_tilt, flags)
-        np.logical_or(crash, flags[0], crash)
-        np.logical_or(crash, flags[1], crash)
-        np.less_equal(d2, cfg.max_distance**2, flag)
+        np.greater(tilt, k["max_tilt"], flags)
+        flag_roll, flag_pitch = self._flag_rows
+        np.logical_or(crash, flag_roll, crash)
+        np.logical_or(crash, flag_pitch, crash)
+        np.less_equal(d2, k["max_distance_sq"], flag)
         np.logical_not(flag, flag)
         np.logical_or(crash, flag, crash)
         # core.mission.yaw_errors: |r|, and d = |ψ − ψ_cmd| wrapped as min(d, 2π − d)
-        np.abs(r_rate, self.rate)
+        if norms:
+            np.abs(r_rate, self.rate)
         sub(yaw, heading, t)
         np.abs(t, t)
         sub(k["two_pi"], t, self.head)
         np.minimum(t, self.head, out=self.head)
         # hover_reward
         r = self.reward
-        einsum_dot3_rows(rates, self.rates_sq, self.squares)
+        einsum_dot3_rows(rates, self.rates_sq, self.squares, self._squares_rows)
         over = self.over
-        np.maximum(tilt[0], tilt[1], out=over)
+        np.maximum(*self._tilt_rows, out=over)
         sub(over, k["soft"], over)
         np.maximum(over, k["zero"], out=over)
         neg_d2 = self.u  # gaussian: exp(−d²/σ²), the −d² shared by both widths

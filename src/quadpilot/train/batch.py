@@ -88,7 +88,9 @@ class QuadBatch:
     per step: sensor noise (NumPy buffers the (N, 15) and (N, 27) updates of
     `SensorNoiseState.step`) and domain randomisation (a new ParamBatch, and pushes' forces, from
     `core.randomization`). A reset draws its drones' new episodes in arrays of their number.
-    `state` and `rotor` read and write as (N, 12) and (N, M) arrays (`_Rows`).
+    `state`, `rotor` and `target` read and write as (N, 12), (N, M) and (N, 3) arrays (`_Rows`); the
+    target is kept as rows (3, N) so that the reward's and the observation's position errors are one
+    subtraction over contiguous rows each.
 
     `QuadVectorEnv` steps through `step_autoreset`, which also resets the drones whose episode
     ended and builds every observation of the step in one go."""
@@ -108,7 +110,7 @@ class QuadBatch:
         self.target_radius = cfg.target_radius
         self._state = _Rows(np.zeros((STATE_DIM, n), self.dtype))
         self._rotor = _Rows(np.full((m, n), self.u_hover, self.dtype))
-        self.target = np.tile(self.home, (n, 1))
+        self._target = _Rows(np.ascontiguousarray(np.tile(self.home, (n, 1)).T))
         self._homes = np.tile(self.home, (n, 1))  # start points of a reset, never written
         self.target_vel = np.zeros((n, 3), self.dtype)
         self.phase = np.zeros(n)  # circle: angle of the target point at t = 0
@@ -143,11 +145,16 @@ class QuadBatch:
         # contiguous block whatever k is)
         self._ext_state = np.zeros(STATE_DIM * 2 * n, self.dtype)
         self._estimate = np.zeros(STATE_DIM * 2 * n, self.dtype)  # rows of the noisy state estimate
-        self._ext_target, self._ext_target_vel = np.zeros((2, 2 * n, 3), self.dtype)
+        self._ext_target = np.zeros(3 * 2 * n, self.dtype)  # (3, n + k) target rows
+        self._ext_target_vel = np.zeros((2 * n, 3), self.dtype)
         self._ext_heading = np.zeros(2 * n, self.dtype)
+        self._ext_cache: dict = {}
         self._wide = np.empty((3, n))  # float64 rows: the reward, error and yaw errors widened for the sums
+        self._wide_rows = tuple(self._wide)
+        self._window_from = cfg.episode_steps - cfg.success_steps  # the success window: steps past this
         self._window, self._truncated, self._alive, self._done = np.empty((4, n), bool)
         self._one = self.dtype.type(1.0)
+        self._heading_offset = np.radians(cfg.heading_offset_deg)  # rad, the widest commanded offset
         self._angle, self._cos, self._sin, self._tmp = np.empty((4, n))  # circle target, float64
         # circle: the target's constant z and vertical speed, as _circle_target computes them
         # (home_z + radius·0 and speed·0, in float64, cast)
@@ -163,6 +170,11 @@ class QuadBatch:
         lambda self: self._rotor.get(),
         lambda self, value: self._rotor.set(value),
         doc="(N, M) normalised rotor speeds.",
+    )
+    target = property(
+        lambda self: self._target.get(),
+        lambda self, value: self._target.set(value),
+        doc="(N, 3) target positions, m (ENU).",
     )
 
     @property
@@ -190,11 +202,13 @@ class QuadBatch:
         np.add(self.phase, ang, out=ang)
         np.cos(ang, out=ca)
         np.sin(ang, out=sa)
+        target = self._target.sync()  # written whole here, as rows
         for j, v in enumerate((ca, sa)):  # home + radius·(cos, sin, 0)
             np.multiply(c.circle_radius, v, out=tmp)
             np.add(self.home[j], tmp, out=tmp)
-            np.copyto(self.target[:, j], tmp, casting="same_kind")
-        self.target[:, 2] = self._circle_z
+            np.copyto(target[j], tmp, casting="same_kind")
+        target[2] = self._circle_z
+        self._target.stale = True
         np.negative(sa, out=tmp)  # speed·(−sin, cos, 0)
         np.multiply(c.circle_speed, tmp, out=tmp)
         np.copyto(self.target_vel[:, 0], tmp, casting="same_kind")
@@ -206,26 +220,30 @@ class QuadBatch:
     def reset(self, mask: np.ndarray, rng: np.random.Generator, observe: bool = True) -> None:
         """Re-sample the drones of `mask` (a new episode each) from `rng`, and build their
         observations into `obs` (observe=False leaves that to the caller: `step_autoreset`)."""
-        idx = np.flatnonzero(mask)
+        self._reset(np.flatnonzero(mask), rng, observe)
+
+    def _reset(self, idx: np.ndarray, rng: np.random.Generator, observe: bool) -> None:
+        """`reset` of the drones `idx` (ascending indices, as np.flatnonzero gives them)."""
         k = idx.size
         if k == 0:
             return
         c = self.cfg
         start = self._homes[:k]  # np.tile(home, (k, 1))
         if c.task == "waypoint":
-            self.target[idx] = self.home + sample_ball(rng, k, self.target_radius)
+            self._target.set_rows(idx, self.home + sample_ball(rng, k, self.target_radius))
         elif c.task == "circle":
             self.phase[idx] = rng.uniform(-np.pi, np.pi, k)
             self.steps[idx] = 0
             start, self.target_vel[idx] = self._circle_target(idx)
-            self.target[idx] = start
+            self._target.set_rows(idx, start)
         starts = sample_start_states(rng, start, c.init_pos_radius, c.init_vel, c.init_tilt_deg, c.init_rate)
+        starts = starts.astype(self.dtype)
         self._sync_state()
-        self._state.set_rows(idx, starts.astype(self.dtype))
+        self._state.set_rows(idx, starts)
         # the commanded heading, drawn next to the start state (before any plant draw, so that a
-        # randomised and a plain batch from one seed start alike)
-        offset = rng.uniform(-1.0, 1.0, k) * np.radians(c.heading_offset_deg) if c.heading_offset_deg else 0.0
-        self.heading[idx] = wrap_angle(self._state.rows[YAW, idx] + offset)
+        # randomised and a plain batch from one seed start alike), from the start yaw as the state holds it
+        offset = rng.uniform(-1.0, 1.0, k) * self._heading_offset if c.heading_offset_deg else 0.0
+        self.heading[idx] = wrap_angle(starts[:, YAW] + offset)
         if self.randomizer is not None:  # a new ParamBatch (dynamics re-derives its constants)
             self.params = self.randomizer.resample(self.params, idx, rng, c.episode_steps)
         if c.init_rotor == "hover":
@@ -256,17 +274,17 @@ class QuadBatch:
         obs = np.empty((k, self.obs.shape[1]), np.float32)
         ob.build(
             sensed,
-            self.target[idx],
+            None,
             obs,
             self.target_vel[idx] if c.task == "circle" else None,
             heading=None if self.obs_heading is None else self.obs_heading[idx],
+            target_rows=self._target.sync()[:, idx],
         )
         self.obs[idx] = obs
         if self._trig_valid:  # the reset drones' columns, from their new state
-            sin, cos, zaxis = self._trig
-            sin[:, idx] = ob.last.sin
-            cos[:, idx] = ob.last.cos
-            zaxis[:, idx] = ob.last.rot[:, 2]
+            for rows, new in zip(self._trig, (ob.last.sin, ob.last.cos, ob.last.rot[:, 2]), strict=True):
+                for row, value in zip(rows, new, strict=True):
+                    row[idx] = value
 
     def step(
         self,
@@ -288,26 +306,42 @@ class QuadBatch:
         circle = self.cfg.task == "circle"
         s = self._state.rows
         sensed = s if self.noise is None else self.noise.estimate_rows(s, self._estimate_rows(self.n))
-        self._observe(sensed, self.target, self.obs, self.target_vel if circle else None, self.obs_heading)
+        self._observe(sensed, self._target.rows, self.obs, self.target_vel if circle else None, self.obs_heading)
         # without noise the observation's position error is the true one
-        t, truncated = self._finish(self._observer.last.vec if self.noise is None else None)
+        t, truncated = self._finish(self._observer.last.vec if self.noise is None else None, norms=True)
         return self.obs, t.reward, t.crash, truncated, t.err
 
-    def _observe(self, sensed, target, out, target_vel, heading) -> None:
-        """The observations of the states whose rows are `sensed` (`ObservationBuilder`); the first n
-        are the batch's drones now, whose trigonometry the next step can take when it is of the
-        true state."""
+    def _observe(self, sensed, target_rows, out, target_vel, heading) -> None:
+        """The observations of the states whose rows are `sensed` (`ObservationBuilder`), their
+        targets' rows `target_rows`; the first n are the batch's drones now, whose trigonometry the
+        next step can take when it is of the true state."""
         ob = self._observer
-        ob.build(sensed, target, out, target_vel, heading=heading)
-        w, n = ob.last, self.n
-        self._trig = (w.sin[:, :n], w.cos[:, :n], w.rot[:, 2, :n])
+        ob.build(sensed, None, out, target_vel, heading=heading, target_rows=target_rows)
+        self._trig = ob.last.trig(self.n)
         self._trig_valid = self.noise is None
 
     def _ext_rows(self, k: int) -> np.ndarray:
-        return self._ext_state[: STATE_DIM * k].reshape(STATE_DIM, k)
+        return self._ext_views(k)[0]
+
+    def _ext_target_rows(self, k: int) -> np.ndarray:
+        return self._ext_views(k)[2]
 
     def _estimate_rows(self, k: int) -> np.ndarray:
-        return self._estimate[: STATE_DIM * k].reshape(STATE_DIM, k)
+        return self._ext_views(k)[1]
+
+    def _ext_views(self, k: int) -> tuple:
+        """(state rows (12, k), estimate rows (12, k), target rows (3, k)) on the flat storage, the
+        same view objects for the same k (the observation builder keeps its views of a state array)."""
+        views = self._ext_cache.get(k)
+        if views is None:
+            if len(self._ext_cache) >= 256:
+                self._ext_cache.clear()
+            views = self._ext_cache[k] = (
+                self._ext_state[: STATE_DIM * k].reshape(STATE_DIM, k),
+                self._estimate[: STATE_DIM * k].reshape(STATE_DIM, k),
+                self._ext_target[: 3 * k].reshape(3, k),
+            )
+        return views
 
     def step_autoreset(self, action: np.ndarray, rng: np.random.Generator) -> tuple:
         """`step`, then `reset` of the drones whose episode ended, as `QuadVectorEnv` does, with one
@@ -317,33 +351,34 @@ class QuadBatch:
         `done` and `ended` None if no episode ended, else new arrays: done (N,) bool, and ended
         (final_obs (N, dim): `obs` before the reset, ep_return, steps and `success` of that moment)."""
         self._advance(action)
-        t, truncated = self._finish(None)
+        t, truncated = self._finish(None, norms=False)  # the error norm is not returned here
         done = np.logical_or(t.crash, truncated, self._done)
         n, c = self.n, self.cfg
         circle, head = c.task == "circle", self.obs_heading is not None
         s = self._state.rows
-        if not done.any():
+        if not np.count_nonzero(done):  # (done.any(), at half the cost)
             sensed = s if self.noise is None else self.noise.estimate_rows(s, self._estimate_rows(n))
-            self._observe(sensed, self.target, self.obs, self.target_vel if circle else None, self.obs_heading)
+            self._observe(sensed, self._target.rows, self.obs, self.target_vel if circle else None, self.obs_heading)
             return t.reward, t.crash, truncated, None, None
         done = done.copy()
-        ended = (self.ep_return.copy(), self.steps.copy(), self.success(t.crash, truncated))
-        idx = np.flatnonzero(done)
+        # `truncated` is already "and not crashed": the episodes that ended well (`success`)
+        ended = (self.ep_return.copy(), self.steps.copy(), self._success(truncated))
+        idx = done.nonzero()[0]  # np.flatnonzero(done); the reset below takes these too
         k = idx.size
         # columns n .. n + k − 1: the ended drones as they ended (state, estimate, target, heading)
-        ext, est = self._ext_rows(n + k), self._estimate_rows(n + k)
+        ext, est, target = self._ext_views(n + k)
         ext[:, n:] = s[:, idx]
         if self.noise is not None:
             est[:, n:] = self.noise.estimate(ext[:, n:].T, idx).T
-        target, target_vel, heading = self._ext_target, self._ext_target_vel, self._ext_heading
-        target[n : n + k] = self.target[idx]
+        target_vel, heading = self._ext_target_vel, self._ext_heading
+        target[:, n:] = self._target.rows[:, idx]
         if circle:
             target_vel[n : n + k] = self.target_vel[idx]
         if head:
             heading[n : n + k] = self.heading[idx]
-        self.reset(done, rng, observe=False)
+        self._reset(idx, rng, observe=False)
         # columns 0 .. n − 1: every drone after the reset
-        np.copyto(target[:n], self.target)
+        np.copyto(target[:, :n], self._target.rows)
         if circle:
             np.copyto(target_vel[:n], self.target_vel)
         if head:
@@ -357,7 +392,7 @@ class QuadBatch:
         last = np.empty((k, self.obs.shape[1]), np.float32)
         self._observe(
             sensed,
-            target[: n + k],
+            target,
             (self.obs, last),
             target_vel[: n + k] if circle else None,
             heading[: n + k] if head else None,
@@ -371,6 +406,7 @@ class QuadBatch:
         count, the circle's target, the sensor noise processes (`step` for the arguments)."""
         c = self.cfg
         s, w, u = self._sync_state(), self._rotor.sync(), self._command
+        self._target.sync()  # what was written through `target`, for the reward and the observation
         action = np.asarray(action)
         if action.shape != (self.n, u.shape[0]):
             raise ValueError(f"action must have shape ({self.n}, {u.shape[0]}), got {action.shape}")
@@ -396,29 +432,34 @@ class QuadBatch:
         if self.noise is not None:
             self.noise.step()
 
-    def _finish(self, pos_err: np.ndarray | None) -> tuple[StepTerms, np.ndarray]:
-        """Reward and termination of the step (`core.reward.StepTerms`), the episode sums, truncation."""
+    def _finish(self, pos_err: np.ndarray | None, norms: bool) -> tuple[StepTerms, np.ndarray]:
+        """Reward and termination of the step (`core.reward.StepTerms`), the episode sums, truncation.
+        norms: the caller needs the position error's norm (`StepTerms.err`); the sums need it (and
+        |yaw rate|) only while a drone's success window is open."""
         c, t = self.cfg, self._terms
+        window = self._window
+        np.greater(self.steps, self._window_from, window)
+        summing = np.count_nonzero(window) > 0
         t.compute(
             self._state.rows,
-            self.target,
+            None,
             self.heading,
             c.reward,
             pay_heading=c.obs_version == 2,  # version 1: no heading term in the reward
             circle=(self.home, c.circle_radius, c.circle_speed) if c.task == "circle" else None,
             pos_err=pos_err,
+            target_rows=self._target.rows,
+            norms=norms or summing,
         )
         # the float64 sums take the step's numbers widened first (exactly, by a copy: NumPy would
         # otherwise allocate a buffer to cast them in)
-        wide = self._wide
-        np.copyto(wide[0], t.reward)
-        np.add(self.ep_return, wide[0], self.ep_return)
-        window = self._window
-        np.greater(self.steps, c.episode_steps - c.success_steps, window)
-        if window.any():  # (an addition of 0 where the window is closed leaves the sums as they are)
+        wide, wide_value, _ = self._wide_rows
+        np.copyto(wide, t.reward)
+        np.add(self.ep_return, wide, self.ep_return)
+        if summing:  # (an addition of 0 where the window is closed leaves the sums as they are)
             for total, value in ((self.err_sum, t.err), (self.yaw_rate_sum, t.rate), (self.heading_err_sum, t.head)):
-                np.copyto(wide[1], value)
-                np.add(total, wide[1], total, where=window)  # += where(window, value, 0)
+                np.copyto(wide_value, value)
+                np.add(total, wide_value, total, where=window)  # += where(window, value, 0)
         truncated = self._truncated  # (steps ≥ episode_steps) & ~crash
         np.greater_equal(self.steps, c.episode_steps, truncated)
         np.logical_not(t.crash, self._alive)
@@ -442,13 +483,17 @@ class QuadBatch:
     def success(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
         """(N,) bool: ended by the time limit with mean error over the window within tolerance and
         the start heading held (`core.mission.window_success`, the rule SITL judges by)."""
-        k = self.cfg.success_steps
-        ended_well = truncated & ~terminated
+        return self._success(truncated & ~terminated)
+
+    def _success(self, ended_well: np.ndarray) -> np.ndarray:
+        """`success` of the drones whose episode ended well (ended_well (N,) bool)."""
         out = np.zeros(ended_well.shape, bool)  # the rule is false wherever the episode did not end well
-        idx = np.flatnonzero(ended_well)
-        if idx.size:  # so it is judged where it did (the same numbers: elementwise, by drone)
-            means = (self.err_sum[idx] / k, self.yaw_rate_sum[idx] / k, self.heading_err_sum[idx] / k)
-            out[idx] = window_success(True, *means, self.cfg.success_tolerance)
+        if not np.count_nonzero(ended_well):  # (most steps: no episode reached its time limit)
+            return out
+        k = self.cfg.success_steps
+        idx = np.flatnonzero(ended_well)  # so it is judged where it did (the same numbers: elementwise, by drone)
+        means = (self.err_sum[idx] / k, self.yaw_rate_sum[idx] / k, self.heading_err_sum[idx] / k)
+        out[idx] = window_success(True, *means, self.cfg.success_tolerance)
         return out
 
     def circle_metrics(self) -> tuple[np.ndarray, np.ndarray]:
