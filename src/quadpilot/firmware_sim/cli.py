@@ -10,7 +10,7 @@ import dataclasses
 import math
 import sys
 
-from quadpilot.console import Parser, UsageError
+from quadpilot.console import Parser, UsageError, atomic_write
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
 from quadpilot.core.params import PRESETS
@@ -212,8 +212,8 @@ def _write_stats(path: str, stats: SimStats) -> None:
     import json
 
     try:
-        with open(path, "w") as f:
-            json.dump(dataclasses.asdict(stats), f, indent=1)
+        text = json.dumps(dataclasses.asdict(stats), indent=1)
+        atomic_write(path, lambda f: f.write(text.encode()))
     except OSError as e:
         print(f"quad-sitl: cannot write {path}: {e.strerror or e}", file=sys.stderr)
 

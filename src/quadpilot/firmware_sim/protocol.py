@@ -32,10 +32,11 @@ import logging
 import math
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core import dynamics
 from quadpilot.link import wire
-from quadpilot.link.transport import PeerClosed, bad_data_reason
+from quadpilot.link.transport import Link, PeerClosed, bad_data_reason
 
 from .config import SimConfig
 from .plant import Plant
@@ -45,9 +46,19 @@ from .sensors import rotation as body_to_world
 
 log = logging.getLogger(__name__)
 
+_HIL_GPS = mavlink2.MAVLink_hil_gps_message
+_HIL_STATE_QUATERNION = mavlink2.MAVLink_hil_state_quaternion_message
+_HIL_SENSOR = mavlink2.MAVLink_hil_sensor_message
+
 TIME_ORIGIN_US = 1_000_000
 """µs, time_usec of an episode's first messages; it then grows by dt per step. Not zero, because
 some autopilots treat a zero timestamp as 'not set'."""
+
+
+def _codec_sender(mav):
+    """`Link.send_message` for a link that is not a `transport.Link` (any object with a pymavlink codec
+    as `mav`, e.g. a test's scripted peer): the codec's own `<message>_send`."""
+    return lambda cls, args: getattr(mav, cls.msgname.lower() + "_send")(*args)
 
 
 class Protocol:
@@ -62,20 +73,19 @@ class Protocol:
         """The messages of step `n` (see the module doc), then one flush. Each goes to pymavlink as
         one positional call (`link.wire`'s `*_args`: the fields in the message's order)."""
         cfg = self.cfg
-        mav = link.mav
+        send = link.send_message if isinstance(link, Link) else _codec_sender(link.mav)
         t_us = TIME_ORIGIN_US + round(n * cfg.dt * 1e6)
         state = plant.state
         values = state.tolist()  # plain floats for the scalar field arithmetic
         if n % cfg.gps_every == 0:
-            mav.hil_gps_send(*wire.hil_gps_args(values, cfg.home, t_us))
+            send(_HIL_GPS, wire.hil_gps_args(values, cfg.home, t_us))
         rot = body_to_world(state)  # once for the accelerometer and the magnetometer
         accel = plant.specific_force_flu(rot)
-        mav.hil_state_quaternion_send(*wire.hil_state_quaternion_args(values, cfg.home, t_us, accel.tolist()))
+        send(_HIL_STATE_QUATERNION, wire.hil_state_quaternion_args(values, cfg.home, t_us, accel.tolist()))
         r = sensors.read(state, accel, n, rot)
         if r.estimate is not None:
-            mav.odometry_send(**wire.odometry_fields(r.estimate, t_us, *sensors.variances))
-        sensor = wire.hil_sensor_args(t_us, r.gyro, r.accel, r.mag, r.pressure_hpa, r.alt_m, r.temperature_c)
-        mav.hil_sensor_send(*sensor)
+            link.mav.odometry_send(**wire.odometry_fields(r.estimate, t_us, *sensors.variances))
+        send(_HIL_SENSOR, wire.hil_sensor_args(t_us, r.gyro, r.accel, r.mag, r.pressure_hpa, r.alt_m, r.temperature_c))
         link.flush()
 
     def receive(self, link, timeout: float, ep: EpisodeTally | None):
@@ -109,22 +119,19 @@ class Protocol:
     def command(self, msg, ep: EpisodeTally) -> np.ndarray | None:
         """Motor command (4,) from an actuator message; None if it must be dropped."""
         try:
-            motors, armed, _ = wire.motors_from_actuator_controls(msg)
+            values, armed, _ = wire.motor_values_from_actuator_controls(msg)  # plain floats: cheap comparisons
         except (TypeError, IndexError, ValueError):
             self.drop("bad_data", ep)
             return None
         if not armed:
             ep.commands += 1
             return np.zeros(dynamics.NUM_MOTORS)
-        values = motors.tolist()  # plain floats: four comparisons are cheaper than numpy calls
-        if not all(math.isfinite(v) for v in values):
-            self.drop("non_finite_control", ep)
-            return None
-        if not all(0.0 <= v <= 1.0 for v in values):
-            self.drop("out_of_range_control", ep)
+        a, b, c, d = values
+        if not (0.0 <= a <= 1.0 and 0.0 <= b <= 1.0 and 0.0 <= c <= 1.0 and 0.0 <= d <= 1.0):  # False for NaN too
+            self.drop("out_of_range_control" if all(math.isfinite(v) for v in values) else "non_finite_control", ep)
             return None
         ep.commands += 1
-        return motors
+        return np.array(values)
 
     def drop(self, reason: str, ep: EpisodeTally | None) -> None:
         self.count(reason, 1, ep)

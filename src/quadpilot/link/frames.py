@@ -119,7 +119,7 @@ def quaternion_to_rotmat(q) -> np.ndarray:
 
 def local_to_geodetic(pos_enu: np.ndarray, home: Home) -> tuple[int, int, int]:
     """Local ENU position (m) → (lat degE7, lon degE7, alt mm), rounded to the wire's integers."""
-    e, n, u = (float(v) for v in pos_enu)
+    e, n, u = map(float, pos_enu)
     lat = home.lat_deg + n / home.metres_per_deg_lat
     lon = home.lon_deg + e / home.metres_per_deg_lon
     return round(lat * 1e7), round(lon * 1e7), round((home.alt_m + u) * 1000.0)

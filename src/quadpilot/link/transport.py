@@ -289,6 +289,15 @@ class Link:
             if left <= 0:
                 return None
 
+    def send_message(self, cls, args) -> None:
+        """Queue one message: `mav.<message>_send(*args)` for pymavlink's MAVLink 2 message class `cls`
+        (`args` in the order of its constructor, the order of `link.wire`'s `*_args`)."""
+        getattr(self.mav, cls.msgname.lower() + "_send")(*args)
+
+    def next_parsed(self):
+        """The next message already read and parsed, or None: `recv` without a system call."""
+        return self._pending.popleft() if self._pending else None
+
     def _parse(self, data: bytes) -> None:
         msgs = self._codec.parse_buffer(data)
         if msgs:

@@ -36,7 +36,6 @@ are unit quaternions; a sender normalises before it sends), and magnitudes no ve
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
@@ -63,6 +62,9 @@ from .frames import (
 from .frames import geodetic_to_local as geodetic_to_local
 from .frames import ned_to_enu as ned_to_enu
 from .frames import rotmat_to_quaternion as rotmat_to_quaternion
+from .saturation import fields_from_args as _fields_of
+from .saturation import saturating as _saturating
+from .saturation import saturating_args as _saturating_args
 
 G_MG = 9.80665 / 1000.0  # m/s² per milli-g (MAVLink's mG uses standard gravity)
 ARMED = 128  # MAV_MODE_FLAG_SAFETY_ARMED, in HIL_ACTUATOR_CONTROLS.mode
@@ -85,81 +87,6 @@ MAX_ESTIMATE_DISTANCE = 2_147_483.647
 """m, the largest position component a state estimate may carry: what HIL_STATE_QUATERNION's int32
 millimetre altitude can express."""
 
-_INT_RANGE = {
-    "int8_t": (-(2**7), 2**7 - 1),
-    "uint8_t": (0, 2**8 - 1),
-    "int16_t": (-(2**15), 2**15 - 1),
-    "uint16_t": (0, 2**16 - 1),
-    "int32_t": (-(2**31), 2**31 - 1),
-    "uint32_t": (0, 2**32 - 1),
-    "int64_t": (-(2**63), 2**63 - 1),
-    "uint64_t": (0, 2**64 - 1),
-}
-
-
-def _saturating(message_class):
-    """Decorate a `*_fields` function of `message_class`: every scalar integer field of its result is
-    saturated to the range of the field's MAVLink type, as pymavlink's message definition gives it.
-    The one place where integer wire fields are bounded."""
-    limits = tuple(
-        (name, *_INT_RANGE[kind])
-        for name, kind in zip(message_class.fieldnames, message_class.fieldtypes, strict=True)
-        if kind in _INT_RANGE
-    )
-
-    def decorate(fields_of):
-        @functools.wraps(fields_of)
-        def saturated(*args, **kwargs) -> dict:
-            out = fields_of(*args, **kwargs)
-            for name, lo, hi in limits:
-                v = out.get(name, 0)  # (an extension field left out takes pymavlink's default, 0)
-                if v < lo:
-                    out[name] = lo
-                elif v > hi:
-                    out[name] = hi
-            return out
-
-        return saturated
-
-    return decorate
-
-
-def _saturating_args(message_class):
-    """`_saturating` for an `*_args` function of `message_class`, whose result is the message's fields
-    as a list in the order of its definition (the order of pymavlink's `<message>_encode` and
-    `<message>_send` arguments): the same bounds, applied by position. The messages of every
-    simulation step are built this way (a list, one call to pymavlink), and their `*_fields` dicts
-    from the same function (`_fields_of`)."""
-    limits = tuple((i, *_INT_RANGE[kind]) for i, kind in enumerate(message_class.fieldtypes) if kind in _INT_RANGE)
-
-    def decorate(args_of):
-        @functools.wraps(args_of)
-        def saturated(*args, **kwargs) -> list:
-            out = args_of(*args, **kwargs)
-            for i, lo, hi in limits:
-                v = out[i]
-                if v < lo:
-                    out[i] = lo
-                elif v > hi:
-                    out[i] = hi
-            return out
-
-        return saturated
-
-    return decorate
-
-
-def _fields_of(message_class, args_of, doc: str):
-    """The keyword-argument form of an `*_args` function: {field name: value}."""
-    names = message_class.fieldnames
-
-    @functools.wraps(args_of)
-    def fields(*args, **kwargs) -> dict:
-        return dict(zip(names, args_of(*args, **kwargs), strict=True))
-
-    fields.__doc__ = doc
-    return fields
-
 
 class BadState(ValueError):
     """A received state message whose values cannot be a vehicle's state; `reason` names the check
@@ -172,7 +99,7 @@ class BadState(ValueError):
 
 def _unit_quaternion(q, what: str) -> tuple[float, float, float, float]:
     """(w, x, y, z) normalised, or BadState: non-finite, zero, or not of unit length."""
-    w, x, y, z = (float(v) for v in q)
+    w, x, y, z = map(float, q)
     n2 = w * w + x * x + y * y + z * z
     if not math.isfinite(n2):  # also catches a NaN or ±Inf component, and an overflowing square
         raise BadState("non_finite", f"{what}: non-finite attitude quaternion {[w, x, y, z]}")
@@ -186,6 +113,9 @@ def _unit_quaternion(q, what: str) -> tuple[float, float, float, float]:
 
 
 def _check_rates(what: str, *rates: float) -> None:
+    (a, b, c), lim = rates, MAX_BODY_RATE
+    if -lim <= a <= lim and -lim <= b <= lim and -lim <= c <= lim:
+        return  # every state (False for a NaN too: the loop below names what is wrong)
     for v in rates:
         if not -MAX_BODY_RATE <= v <= MAX_BODY_RATE:
             if not math.isfinite(v):
@@ -201,12 +131,12 @@ def _cm(v: float) -> int:
 @_saturating_args(mavlink2.MAVLink_hil_state_quaternion_message)
 def hil_state_quaternion_args(state, home: Home, time_usec: int, accel_flu=None) -> list:
     """Arguments of `mav.hil_state_quaternion_send` (in order) for one 12-state (ENU/FLU, SI)."""
-    x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r = (float(v) for v in state)
+    x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r = map(float, state)
     lat, lon, alt = local_to_geodetic((x, y, z), home)
     if accel_flu is None:
         acc = (0.0, 0.0, 0.0)
     else:
-        a0, a1, a2 = (float(v) for v in accel_flu)
+        a0, a1, a2 = map(float, accel_flu)
         acc = (a0 / G_MG, -a1 / G_MG, -a2 / G_MG)
     return [
         int(time_usec),
@@ -217,9 +147,9 @@ def hil_state_quaternion_args(state, home: Home, time_usec: int, accel_flu=None)
         lat,
         lon,
         alt,
-        _cm(vy),  # vx: NED north = ENU y
-        _cm(vx),  # vy
-        _cm(-vz),  # vz
+        round(vy * 100.0),  # vx: NED north = ENU y, cm/s (`_cm` written out: this runs every simulation step)
+        round(vx * 100.0),  # vy
+        round(-vz * 100.0),  # vz
         0,  # ind_airspeed
         0,  # true_airspeed
         round(acc[0]),  # xacc
@@ -238,7 +168,14 @@ hil_state_quaternion_fields = _fields_of(
 def state_from_hil_state_quaternion(msg, home: Home) -> np.ndarray:
     """A HIL_STATE_QUATERNION message (or any object with its fields) → 12-state ENU/FLU, SI.
     BadState if it cannot be a state: a non-finite value, a quaternion that is not a unit one, a
-    latitude or longitude off the globe, a body rate beyond MAX_BODY_RATE.
+    latitude or longitude off the globe, a body rate beyond MAX_BODY_RATE (`state_values_from_hil_state_quaternion`
+    as an array)."""
+    return np.array(state_values_from_hil_state_quaternion(msg, home))
+
+
+def state_values_from_hil_state_quaternion(msg, home: Home) -> list[float]:
+    """`state_from_hil_state_quaternion` as 12 floats, the same values (the node's control loop works
+    on floats).
 
     Scalar arithmetic (every step): the attitude is `rotmat_to_euler(rotmat_ned_frd_to_enu_flu(
     quaternion_to_rotmat(q)))` written out, which the tests check it against."""
@@ -251,22 +188,26 @@ def state_from_hil_state_quaternion(msg, home: Home) -> np.ndarray:
     r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
     n_m = (msg.lat * 1e-7 - home.lat_deg) * home.metres_per_deg_lat
     e_m = (msg.lon * 1e-7 - home.lon_deg) * home.metres_per_deg_lon
-    return np.array(
-        [
-            e_m,
-            n_m,
-            msg.alt * 1e-3 - home.alt_m,
-            msg.vy * 0.01,
-            msg.vx * 0.01,
-            -msg.vz * 0.01,
-            math.atan2(r21, r22),
-            math.asin(min(1.0, max(-1.0, r20))),
-            math.atan2(r00, r10),
-            msg.rollspeed,
-            -msg.pitchspeed,
-            -msg.yawspeed,
-        ]
-    )
+    return [
+        e_m,
+        n_m,
+        msg.alt * 1e-3 - home.alt_m,
+        msg.vy * 0.01,
+        msg.vx * 0.01,
+        -msg.vz * 0.01,
+        math.atan2(r21, r22),
+        math.asin(min(1.0, max(-1.0, r20))),
+        math.atan2(r00, r10),
+        msg.rollspeed,
+        -msg.pitchspeed,
+        -msg.yawspeed,
+    ]
+
+
+def _floats(v):
+    """The values of `v` as Python floats: a float array's tolist() gives the floats float() gives its
+    elements, without a call per element (this runs every simulation step)."""
+    return v.tolist() if type(v) is np.ndarray and v.dtype.kind == "f" else map(float, v)
 
 
 @_saturating_args(mavlink2.MAVLink_hil_sensor_message)
@@ -281,9 +222,9 @@ def hil_sensor_args(
 ) -> list:
     """Arguments of `mav.hil_sensor_send` (in order); vectors in body FLU, converted to FRD here
     (y and z times −1, as `frames.flu_to_frd`)."""
-    g0, g1, g2 = (float(v) for v in gyro_flu)
-    a0, a1, a2 = (float(v) for v in accel_flu)
-    m0, m1, m2 = (float(v) for v in mag_flu)
+    g0, g1, g2 = _floats(gyro_flu)
+    a0, a1, a2 = _floats(accel_flu)
+    m0, m1, m2 = _floats(mag_flu)
     return [
         int(time_usec),
         a0,  # xacc
@@ -457,7 +398,10 @@ class NonFiniteCommand(ValueError):
 def actuator_controls_args(motors, time_usec: int, armed: bool, lockstep: bool) -> list:
     """Arguments of `mav.hil_actuator_controls_send` (in order) for 4 motor commands in [0, 1] (our
     rotor order). Raises NonFiniteCommand for NaN/Inf; clamps finite values to [0, 1]."""
-    values = np.asarray(motors, np.float64).reshape(-1).tolist()
+    if type(motors) is np.ndarray and motors.dtype.kind == "f" and motors.shape == (NUM_MOTORS,):
+        values = motors.tolist()  # float32 and float64 values are exact as Python floats
+    else:
+        values = np.asarray(motors, np.float64).reshape(-1).tolist()
     if len(values) != NUM_MOTORS:
         raise ValueError(f"expected {NUM_MOTORS} motor commands, got {len(values)}")
     controls = [0.0] * 16
@@ -480,11 +424,17 @@ actuator_controls_fields = _fields_of(
 def motors_from_actuator_controls(msg) -> tuple[np.ndarray, bool, bool]:
     """(motor commands (4,) in our rotor order, armed, lockstep) from HIL_ACTUATOR_CONTROLS.
     Values are returned as sent; the caller decides what to do with non-finite or out-of-range ones."""
+    values, armed, lockstep = motor_values_from_actuator_controls(msg)
+    return np.array(values, np.float64), armed, lockstep
+
+
+def motor_values_from_actuator_controls(msg) -> tuple[list[float], bool, bool]:
+    """`motors_from_actuator_controls` with the commands as 4 floats (the simulator checks them every step)."""
     controls = msg.controls
-    motors = np.empty(NUM_MOTORS)
+    values = [0.0] * NUM_MOTORS
     for wire, ours in enumerate(MOTOR_MAP):
-        motors[ours] = controls[wire]
-    return motors, bool(msg.mode & ARMED), bool(msg.flags & LOCKSTEP)
+        values[ours] = float(controls[wire])
+    return values, bool(msg.mode & ARMED), bool(msg.flags & LOCKSTEP)
 
 
 # --- ground-station telemetry (autopilot → GCS on UDP 14550) -----------------------------------

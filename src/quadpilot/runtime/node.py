@@ -6,7 +6,8 @@ at 1 Hz, and per simulation step answers exactly once: on HIL_SENSOR (the messag
 on, sent last in each step), with the ground truth of the same step's HIL_STATE_QUATERNION and the
 body rates of the HIL_SENSOR gyro (FRD, the frame MAVLink defines; a simulator's
 HIL_STATE_QUATERNION rates are not trusted for flying: RotorPy 3.0.0 sends them in FLU), it builds
-the observation with `core.observation.build_observation` (the function training used), runs the
+the observation with `core.observation.build_observation` (the function training used; for the one
+vehicle in scalar arithmetic, the same bits: `observation_one.observe`), runs the
 policy through the `SafetyMonitor`, and sends one HIL_ACTUATOR_CONTROLS (armed, lockstep flag in
 lockstep mode). When the simulator also sends ODOMETRY for the step (a state estimate,
 `--estimator-noise`), the observation is built from that estimate instead of the ground truth,
@@ -75,13 +76,13 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.dynamics import NUM_MOTORS
-from quadpilot.core.observation import build_observation
-from quadpilot.core.state import POS, YAW, P, Q, R
+from quadpilot.core.state import POS, YAW
 from quadpilot.link import transport, wire
 
 from .commander import Commander
 from .flight_log import EpisodeLog
 from .ground_station import NODE_COMPONENT_ID, NODE_SYSTEM_ID, GroundStation, commander_for, commander_summary
+from .observation_one import observe
 from .safety import SafetyMonitor
 from .setpoint import collective_thrust
 
@@ -90,6 +91,7 @@ START_MODES = ("air", "landed")
 DISARMED_LINGER_S = 1.0
 """s a commanded flight goes on after the vehicle has flown and been disarmed (simulated time), so
 that the ground station hears the landed, disarmed vehicle in its 1 Hz streams before the link closes."""
+_ACTUATOR_CONTROLS = mavlink2.MAVLink_hil_actuator_controls_message
 IDLE = np.zeros(NUM_MOTORS, np.float32)
 """The command while the commander holds the motors off (disarmed, or idle on the ground)."""
 TICK_TOLERANCE_US = 100
@@ -245,6 +247,11 @@ class Node:
                         break
                     continue
                 handle(msg)
+                while not flight.done:  # the rest of what that read brought (a step's messages come together)
+                    msg = link.next_parsed()
+                    if msg is None:
+                        break
+                    handle(msg)
         except transport.PeerClosed:
             if not flight.done:
                 log.failsafe = "simulator closed the link"
@@ -341,6 +348,7 @@ class _Flight:
         self.last_state_at = start  # host monotonic clock: link loss is measured on it
         self.any_state = False  # a state message (valid or not) has arrived: link loss counts from here
         self.state: np.ndarray | None = None  # the last state that passed wire's checks
+        self.state_values: list = []  # the same state as floats, for the observation
         self.state_time = -1
         self.bad_time = -1  # time_usec of the last state dropped by those checks: its step is flown blind
         self.bad_at = -math.inf
@@ -359,6 +367,8 @@ class _Flight:
         self.held: np.ndarray | None = None  # the command of the last tick, answered until the next
         self.held_source = "policy"
         self.target = fixed
+        self._fixed_of: np.ndarray | None = None  # the fixed target `_fixed_values` holds as floats
+        self._fixed_values: list = []
         self.done = False
 
     def handle(self, msg) -> None:
@@ -385,13 +395,14 @@ class _Flight:
         if home is None:  # home is this position, if it is a valid state at all
             home = wire.Home(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
         try:
-            new = wire.state_from_hil_state_quaternion(msg, home)
+            values = wire.state_values_from_hil_state_quaternion(msg, home)
         except wire.BadState as e:
             # never flown on, logged or sent to the ground station; its step is still answered (see
             # on_sensor), and the link-loss timer keeps running
             log.dropped[f"state_{e.reason}"] += 1
             self.bad_time, self.bad_at = msg.time_usec, time.monotonic()
             return
+        new = np.array(values)
         if self.home is None:
             self.home = home
             if self.gcs is not None:
@@ -400,7 +411,7 @@ class _Flight:
             self.fixed = self.target = new[POS].copy()
         if self.heading is None:  # hold the first valid heading
             self.heading = float(new[YAW])
-        self.state = new
+        self.state, self.state_values = new, values
         self.state_time = msg.time_usec
         self.last_state_at = time.monotonic()
         self.received += 1
@@ -434,12 +445,13 @@ class _Flight:
             cmd = self.held = monitor.blind("state_dropped")
             self.held_source = monitor.source
         elif tick:
-            s = (self.estimate if self.estimate_time == t_us else state).copy()
-            s[P], s[Q], s[R] = wire.gyro_values_from_hil_sensor(msg)
+            # the state flown on, as floats, with the body rates of the gyro
+            s = (self.estimate.tolist() if self.estimate_time == t_us else self.state_values)[:9]
+            s += wire.gyro_values_from_hil_sensor(msg)
             run = True
             heading = self.heading
             if commander is not None:
-                sp = self._command(s, t_us)
+                sp = self._command(np.array(s), t_us)
                 heading = sp.yaw
                 target, target_vel = sp.position, (sp.velocity if self.track else None)
                 run = sp.armed and sp.motors_enabled
@@ -453,7 +465,16 @@ class _Flight:
             self.target = target
             if run:
                 heading = heading_within_reach(float(s[YAW]), heading) if self.heading_frame else None
-                obs = build_observation(s[None], target, target_vel, heading=heading)[0]
+                if target is not self.fixed:
+                    tp = np.asarray(target, np.float64).tolist()
+                elif self._fixed_of is target:  # the node's own fixed target (never changed in place), as floats
+                    tp = self._fixed_values
+                else:
+                    self._fixed_of, tp = target, np.asarray(target, np.float64).tolist()
+                    self._fixed_values = tp
+                tv = None if target_vel is None else np.asarray(target_vel, np.float64).tolist()
+                # `core.observation.build_observation` (the function training used) for one state, the same bits
+                obs = observe(s, tp, tv, heading)
                 cmd = self.held = monitor.act(obs)
                 self.held_source = monitor.source
             else:  # disarmed, or idle on the ground: motors off, the policy not run
@@ -463,7 +484,7 @@ class _Flight:
             self.next_tick_us = nxt if nxt > t_us else t_us + self.period_us  # never a burst to catch up
         else:
             cmd = self.held  # between two of the policy's ticks: the last command, held
-        self.link.mav.hil_actuator_controls_send(*wire.actuator_controls_args(cmd, t_us, self.held_armed, lockstep))
+        self.link.send_message(_ACTUATOR_CONTROLS, wire.actuator_controls_args(cmd, t_us, self.held_armed, lockstep))
         t_out = time.perf_counter()  # latency ends here: on one CPU the woken simulator may run inside the send
         self.link.flush()
         log.replies += 1

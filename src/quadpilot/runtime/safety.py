@@ -30,6 +30,7 @@ either. `events` counts every reason, `source` says who flew the last step.
 from __future__ import annotations
 
 import math
+import operator
 from collections import Counter
 from dataclasses import dataclass
 
@@ -168,10 +169,12 @@ class SafetyMonitor:
         """Motor commands (4,) float32 in [0, 1], finite, for one raw observation (obs_dim,)."""
         obs = self._observation(obs)
         vals = obs.tolist()
-        # written out inline: this runs at the control rate and every call costs (see benchmarks)
-        for v, b in zip(vals, self._bound, strict=False):  # lengths equal: checked above
-            if not -b <= v <= b:  # also False for NaN
-                return self.blind("obs_out_of_range" if math.isfinite(v) else "obs_nonfinite")
+        # |v| ≤ bound for every value, in C (this runs at the control rate and every call costs, see
+        # benchmarks); False for NaN too. The first value out of bounds names the reason.
+        if not all(map(operator.le, map(abs, vals), self._bound)):
+            for v, b in zip(vals, self._bound, strict=False):  # lengths equal: checked above
+                if not -b <= v <= b:
+                    return self.blind("obs_out_of_range" if math.isfinite(v) else "obs_nonfinite")
         if self._not_a_rotation(vals):
             return self.blind("obs_not_rotation")
         if self._latched:
