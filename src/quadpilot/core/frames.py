@@ -6,6 +6,8 @@ world vectors. Conversions to MAVLink's NED/FRD live in `quadpilot.link`, not he
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -113,3 +115,17 @@ def world_to_body(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
 def body_to_world(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
     """R·v for rotation matrices (N, 3, 3) and body vectors (N, 3)."""
     return np.einsum("nij,nj->ni", rot, v)
+
+
+def scalar_trig_agrees(samples: int = 256) -> bool:
+    """math.sin, math.cos and math.floor give NumPy's bits on one-element float64 arrays at
+    `samples` angles over ±4π and a few special ones. The scalar forms of one vehicle's step and
+    observation (`firmware_sim.single_step`, `runtime.observation_one`) compute only where this
+    holds: `math` is the C library's, while `np.sin` may be NumPy's own SIMD code on some CPUs."""
+    rng = np.random.default_rng(20240611)
+    angles = np.concatenate([rng.uniform(-4 * math.pi, 4 * math.pi, samples), [0.0, -0.0, math.pi, -math.pi, 1e-300]])
+    for v in angles.tolist():
+        a = np.array([v])
+        if (np.sin(a)[0], np.cos(a)[0], np.floor(a)[0]) != (math.sin(v), math.cos(v), float(math.floor(v))):
+            return False
+    return True

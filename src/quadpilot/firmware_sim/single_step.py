@@ -8,7 +8,7 @@ flight). This is that arithmetic, written out once more for one drone and one su
 for operation in the order `core.dynamics.Stepper` does it, so that it gives the same bits: IEEE
 double arithmetic on Python floats and on float64 arrays rounds alike, and neither fuses a multiply
 with an add. What could differ is the trigonometry (`math.sin` is the C library's, `np.sin` may be
-NumPy's own SIMD code on some CPUs): `trig_agrees` checks the two on sample angles when the module
+NumPy's own SIMD code on some CPUs): `core.frames.scalar_trig_agrees` checks the two on sample angles when the module
 is loaded, and where they differ `SingleStep.step` declines and the plant takes `core.dynamics.step`
 instead. tests/firmware_sim/test_single_step.py compares the two steps bit for bit over random
 states, commands, airframes (quad-X, other layouts, motor lag, idle speed, drag) and external forces.
@@ -25,25 +25,14 @@ import math
 
 import numpy as np
 
+from quadpilot.core.frames import scalar_trig_agrees
 from quadpilot.core.params import ParamBatch
 
 _TWO_PI = 2.0 * math.pi
 _INV_TWO_PI = 1.0 / _TWO_PI
 
 
-def trig_agrees(samples: int = 256) -> bool:
-    """math.sin/cos/floor give NumPy's bits on one-element float64 arrays (what `core.dynamics`
-    computes on for one drone) at `samples` angles over ±4π and a few special ones."""
-    rng = np.random.default_rng(20240611)
-    angles = np.concatenate([rng.uniform(-4 * math.pi, 4 * math.pi, samples), [0.0, -0.0, math.pi, -math.pi, 1e-300]])
-    for v in angles.tolist():
-        a = np.array([v])
-        if (np.sin(a)[0], np.cos(a)[0], np.floor(a)[0]) != (math.sin(v), math.cos(v), float(math.floor(v))):
-            return False
-    return True
-
-
-TRIG_AGREES = trig_agrees()
+TRIG_AGREES = scalar_trig_agrees()
 """Whether `SingleStep` may compute (checked once, when this module is loaded)."""
 
 

@@ -10,7 +10,7 @@ as `core.frames.world_to_body_rows` documents), in float64, rounded to float32 o
 the assignment into `build_observation`'s float32 output rounds it. IEEE double arithmetic on Python
 floats and on float64 arrays rounds alike; what could differ is the trigonometry (`math.sin` is the
 C library's, `np.sin` may be NumPy's own SIMD code on some CPUs): `TRIG_AGREES` checks the two on
-sample angles when the module is loaded (as `firmware_sim.single_step` does for the simulator), and
+sample angles when the module is loaded (`core.frames.scalar_trig_agrees`, as for the simulator), and
 where they differ, or an input is not finite (`math.sin` raises on ±Inf where `np.sin` gives NaN; a
 NaN's sign and payload need not survive two compilers' arithmetic alike), `observe` hands the state
 to `build_observation` itself. tests/runtime/test_observation_one.py compares the two bit for bit
@@ -23,22 +23,10 @@ import math
 
 import numpy as np
 
+from quadpilot.core.frames import scalar_trig_agrees
 from quadpilot.core.observation import build_observation
 
-
-def trig_agrees(samples: int = 256) -> bool:
-    """math.sin/cos give NumPy's bits on one-element float64 arrays (what `build_observation`
-    computes on for one state) at `samples` angles over ±4π and a few special ones."""
-    rng = np.random.default_rng(20240611)
-    angles = np.concatenate([rng.uniform(-4 * math.pi, 4 * math.pi, samples), [0.0, -0.0, math.pi, -math.pi, 1e-300]])
-    for v in angles.tolist():
-        a = np.array([v])
-        if (np.sin(a)[0], np.cos(a)[0]) != (math.sin(v), math.cos(v)):
-            return False
-    return True
-
-
-TRIG_AGREES = trig_agrees()
+TRIG_AGREES = scalar_trig_agrees()
 """Whether `observe` may compute in scalars (checked once, when this module is loaded)."""
 
 _F32 = np.float32
