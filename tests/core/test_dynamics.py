@@ -326,6 +326,48 @@ def test_step_does_not_modify_inputs_and_checks_shapes():
         step(state[:3], rotor, command, params)
     with pytest.raises(ValueError, match="rotor and command"):
         step(state, rotor[:, :3], command, params)
+    with pytest.raises(ValueError, match="rotor and command"):
+        step(state, rotor, command[:, :3], params)
+    with pytest.raises(ValueError, match="state must be float32 or float64, got int64"):
+        step(state.astype(np.int64), rotor, command, params)
+    with pytest.raises(ValueError, match=r"armed must have shape \(4,\), got \(3,\)"):
+        step(state, rotor, command, params, armed=np.ones(3, bool))
+    for name in ("force", "torque"):
+        with pytest.raises(ValueError, match=rf"{name} must have shape \(4, 3\)"):
+            step(state, rotor, command, params, **{name: np.zeros((4, 2))})
+
+
+def test_step_returns_new_c_ordered_arrays_of_the_state_dtype():
+    """What callers index and hash: (N, 12) and (N, M) in the state's dtype, C-ordered, whatever the
+    dtype the rotor speeds and commands come in."""
+    for dtype in (np.float32, np.float64):
+        params, state, rotor, command = random_fleet(5, dtype)
+        other = np.float64 if dtype == np.float32 else np.float32
+        s, w = step(state, rotor.astype(other), command.astype(other), params)
+        assert s.dtype == w.dtype == dtype and s.flags.c_contiguous and w.flags.c_contiguous
+        assert s.shape == state.shape and w.shape == rotor.shape
+
+
+def test_one_parameter_batch_steps_both_dtypes_each_with_its_own_constants():
+    """The derived constants are cached on the ParamBatch per step length and dtype: a float32 step
+    after a float64 one on the same batch gives what a fresh batch gives."""
+    params, state, rotor, command = random_fleet(6, np.float64)
+    step(state, rotor, command, params)
+    f32 = [a.astype(np.float32) for a in (state, rotor, command)]
+    got = step(*f32, params)
+    want = step(*f32, dataclasses.replace(params))  # a new batch: no cache
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(got, want, strict=True))
+
+
+def test_stepper_refuses_rows_and_params_of_another_shape():
+    params, state, rotor, command = random_fleet(4, np.float64)
+    stepper = dynamics.Stepper(4, 4, np.float64)
+    s, w, u = (np.ascontiguousarray(a.T) for a in (state, rotor, command))
+    for bad in ((s[:, :3], w, u), (s, w[:3], u), (s, w, u[:3])):
+        with pytest.raises(ValueError, match="rows must have shapes"):
+            stepper.step(*bad, params)
+    with pytest.raises(ValueError, match="params hold 3 drones of 4 rotors, expected 4 of 4"):
+        stepper.step(s, w, u, random_fleet(3, np.float64)[0])
 
 
 # --- 6. convergence in the step length ----------------------------------------------------

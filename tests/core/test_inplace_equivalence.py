@@ -54,6 +54,17 @@ VEHICLES = {
             Rotor(-0.12, 0.09, "cw"),
         ),
     ),
+    # the first rotor's term of a row negative and not ±1 (τx's y = −0.11 against 0.13)
+    "asymmetric_negative_first": dataclasses.replace(
+        SEED_VEHICLE,
+        arm=None,
+        rotors=(
+            Rotor(0.10, -0.11, "ccw"),
+            Rotor(-0.12, 0.13, "ccw"),
+            Rotor(0.12, 0.12, "cw"),
+            Rotor(-0.09, -0.10, "cw"),
+        ),
+    ),
 }
 
 
@@ -107,20 +118,21 @@ def test_stepper_and_step_give_the_bits_of_the_allocating_step(vehicle, dtype, s
 
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: np.dtype(d).name)
-def test_stepper_with_the_observations_trigonometry_gives_the_bits_of_the_allocating_step(dtype):
+@pytest.mark.parametrize("substeps", [1, 3])
+def test_stepper_with_the_observations_trigonometry_gives_the_bits_of_the_allocating_step(dtype, substeps):
     """The sines, cosines and thrust axis the observation computed for the state are the ones the
-    dynamics computes first (QuadBatch hands them over)."""
+    dynamics computes first (QuadBatch hands them over); the later substeps compute their own."""
     n = 41
     params = ParamBatch.from_preset(SEED_VEHICLE, n, dtype=np.dtype(dtype))
     s0 = states(n, dtype, seed=2)
     w0 = np.full((n, 4), 0.5, dtype)
     command = np.random.default_rng(3).uniform(0, 1, (n, 4)).astype(dtype)
-    want_s, want_w = allocating_step(s0, w0, command, params)
+    want_s, want_w = allocating_step(s0, w0, command, params, 0.01, substeps)
     s, w, u = np.ascontiguousarray(s0.T), np.ascontiguousarray(w0.T), np.ascontiguousarray(command.T)
     ob = ObservationBuilder(n, dtype)
     ob.build(s, np.zeros((n, 3), dtype), np.empty((n, 18), np.float32))
     trig = (ob.last.sin, ob.last.cos, ob.last.rot[:, 2])
-    dynamics.Stepper(n, 4, dtype).step(s, w, u, params, trig=trig)
+    dynamics.Stepper(n, 4, dtype).step(s, w, u, params, 0.01, substeps, trig=trig)
     assert same(s.T, want_s) and same(w.T, want_w)
 
 
