@@ -33,7 +33,7 @@ from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timezone
 from pathlib import Path
 
-from quadpilot.console import Parser, UsageError
+from quadpilot.console import BadFile, Parser, UsageError, run_command
 
 from .compare_report import ALGOS, SWEEP, cmd_report
 
@@ -269,22 +269,12 @@ def _check_args(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        args = build_parser().parse_args(argv)
-        _check_args(args)
-        return cmd_run(args, argv) if args.command == "run" else _report(args, argv)
-    except SystemExit as e:  # --help
-        return e.code if isinstance(e.code, int) else 0
-    except UsageError as e:
-        print(f"quad-compare: error: {e}", file=sys.stderr)
-        return 2
-    except _BadSweep as e:
-        print(f"quad-compare: error: {e}", file=sys.stderr)
-        return 1
+    return run_command("quad-compare", lambda: _compare(build_parser().parse_args(argv), argv))
 
 
-class _BadSweep(Exception):
-    """A sweep directory whose files cannot be read: exit code 1, one line."""
+def _compare(args, argv: list[str]) -> int:
+    _check_args(args)
+    return cmd_run(args, argv) if args.command == "run" else _report(args, argv)
 
 
 def _report(args, argv: list[str]) -> int:
@@ -292,7 +282,7 @@ def _report(args, argv: list[str]) -> int:
         return cmd_report(args, argv)
     except (OSError, ValueError, KeyError, TypeError, IndexError) as e:  # JSON/CSV that is not a sweep's
         what = " ".join(str(e).split())[:200]
-        raise _BadSweep(f"{', '.join(args.sweeps)}: a sweep file cannot be read ({type(e).__name__}: {what})") from None
+        raise BadFile(f"{', '.join(args.sweeps)}: a sweep file cannot be read ({type(e).__name__}: {what})") from None
 
 
 if __name__ == "__main__":
