@@ -11,12 +11,15 @@ Against commit bb5efb7 (`test_lockstep_vs_baseline`): that commit's node flying 
 commit's simulator, and today's against today's, each in a child process of its own (the node
 there, its simulator a grandchild: `python -m quadpilot.firmware_sim` of the same source, by
 `baseline.py`'s PYTHONPATH rule), one 20 s episode (2,000 steps) per round, rounds alternating
-between the two so that the load of a shared machine falls on both alike. Both fly one file:
+between them so that the load of a shared machine falls on all alike. A third child flies today's
+code with the lockstep spin off on both sides (`transport.Link.spin_s`): what the spin adds. Each
+is run on an otherwise idle machine ("idle") and with one more process keeping a CPU busy
+("busy"), where a spinning side competes with its peer for what is left. All fly one file:
 bb5efb7's own models/hover/policy.onnx (`git show bb5efb7:models/hover/policy.onnx`), because
 bb5efb7's runtime refuses today's shipped hover policy (its observation layout quadpilot.obs.hover/2
 came later) and today's runtime still flies the old one. Each child times its own rounds; the
-benchmark's statistics are today's rounds as this process sees them, and `extra_info` holds both
-children's round times, their steps/s, the ratio and the load average around the run.
+benchmark's statistics are today's rounds as this process sees them, and `extra_info` holds every
+child's round times, their steps/s, the ratios and the load average around the run.
 
 Real time at 100 Hz and 250 Hz: one 5 s flight per rate; the loop period jitter is |period − dt|
 between consecutive HIL_SENSOR arrivals at the node (what the control loop sees) and between
@@ -101,13 +104,14 @@ from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import _start_simulator
 
 policy, backend, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])
+no_spin = sys.argv[4:] == ["no-spin"]  # today's only: both sides sleep at once, as before the spin
 steps = round(duration * 100)
 cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
-proc, address = _start_simulator(cmd + ["--max-steps", str(steps + 10)])
+proc, address = _start_simulator(cmd + ["--max-steps", str(steps + 10)] + (["--spin-us=0"] if no_spin else []))
 if proc is None:
     raise SystemExit(f"simulator did not start: {address}")
 monitor = SafetyMonitor(load_policy(policy, backend))
-node = Node(NodeConfig(connect=address, duration_s=duration, gcs=None))
+node = Node(NodeConfig(connect=address, duration_s=duration, gcs=None, **({"spin_s": 0.0} if no_spin else {})))
 print("ready", flush=True)
 try:
     for line in sys.stdin:
@@ -128,12 +132,12 @@ finally:
 class _Flyer:
     """A FLYER child on `src` (None: today's installed package), flying `policy`."""
 
-    def __init__(self, src: Path | None, policy: Path, backend: str, duration_s: float) -> None:
+    def __init__(self, src: Path | None, policy: Path, backend: str, duration_s: float, *flags: str) -> None:
         env = dict(os.environ)
         if src is not None:  # baseline.run_python's rule: the baseline's source first on the import path
             env["PYTHONPATH"] = os.pathsep.join([str(src), *filter(None, [env.get("PYTHONPATH")])])
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", FLYER, str(policy), backend, str(duration_s)],
+            [sys.executable, "-c", FLYER, str(policy), backend, str(duration_s), *flags],
             env=env,
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
@@ -181,44 +185,131 @@ def baseline_policy(tmp_path_factory) -> Path:
     return out
 
 
-@pytest.mark.parametrize("backend", ["numpy"])
-def test_lockstep_vs_baseline(benchmark, backend, baseline_policy):
-    """Lockstep steps/s of today's node and simulator against bb5efb7's, side by side, alternating."""
+BUSY = "import time\nend = time.monotonic() + 600\nwhile time.monotonic() < end:\n    pass\n"
+"""A process that keeps one CPU busy (at most 10 minutes): the load of `load="busy"`."""
+
+
+@pytest.mark.parametrize("load", ["idle", "busy"])
+def test_lockstep_vs_baseline(benchmark, load, baseline_policy):
+    """Lockstep steps/s of today's node and simulator against bb5efb7's, side by side, alternating;
+    with them, today's with the lockstep spin off (`--spin-us 0`, `NodeConfig.spin_s=0`). "busy":
+    another process keeps one of the CPUs busy throughout, so the spinning side and its peer share
+    what is left."""
     try:
         src = baseline_src()
     except BaselineUnavailable as e:
         pytest.skip(str(e))
-    load = [os.getloadavg()]
-    old = _Flyer(src, baseline_policy, backend, LOCKSTEP_S)
-    new = _Flyer(None, baseline_policy, backend, LOCKSTEP_S)
+    backend = "numpy"
+    hog = subprocess.Popen([sys.executable, "-c", BUSY]) if load == "busy" else None
+    flyers = []
     try:
+        load_avg = [os.getloadavg()]
+        old = _Flyer(src, baseline_policy, backend, LOCKSTEP_S)
+        flyers.append(old)
+        new = _Flyer(None, baseline_policy, backend, LOCKSTEP_S)
+        flyers.append(new)
+        still = _Flyer(None, baseline_policy, backend, LOCKSTEP_S, "no-spin")
+        flyers.append(still)
         warm = 0 if benchmark.disabled else 1
         for _ in range(warm):  # one round each first: imports, caches, the simulator's first episode
-            old.fly()
-            new.fly()
-        old.rounds.clear()
-        new.rounds.clear()
-        # bb5efb7's round runs as the (untimed) setup of each of today's rounds: they alternate
-        benchmark.pedantic(new.fly, setup=lambda: old.fly() and None, rounds=5, iterations=1)
+            for f in flyers:
+                f.fly()
+        for f in flyers:
+            f.rounds.clear()
+        # the other two rounds run as the (untimed) setup of each of today's rounds: they alternate
+        benchmark.pedantic(new.fly, setup=lambda: (old.fly(), still.fly()) and None, rounds=5, iterations=1)
     finally:
-        old.close()
-        new.close()
-    load.append(os.getloadavg())
+        for f in flyers:
+            f.close()
+        if hog is not None:
+            hog.kill()
+            hog.wait()
+    load_avg.append(os.getloadavg())
     steps = round(LOCKSTEP_S * 100)
-    assert all(r["steps"] == steps for r in old.rounds + new.rounds)
-    rate_old, rate_new = old.steps_per_s(old.rounds), new.steps_per_s(new.rounds)
+    assert all(r["steps"] == steps for f in flyers for r in f.rounds)
+    rate_old, rate_new, rate_still = (f.steps_per_s(f.rounds) for f in flyers)
     benchmark.extra_info.update(
+        load=load,
         baseline_commit=BASELINE_COMMIT,
         policy=f"{BASELINE_COMMIT}:models/hover/policy.onnx",
+        backend=backend,
         steps_per_round=steps,
         baseline_round_s=[r["wall_s"] for r in old.rounds],
         today_round_s=[r["wall_s"] for r in new.rounds],
+        today_no_spin_round_s=[r["wall_s"] for r in still.rounds],
         baseline_steps_per_s=rate_old,
         today_steps_per_s=rate_new,
+        today_no_spin_steps_per_s=rate_still,
         vs_baseline=rate_new / rate_old,
+        no_spin_vs_baseline=rate_still / rate_old,
         baseline_latency_p50_us=old.rounds[-1]["latency_p50_us"],
         today_latency_p50_us=new.rounds[-1]["latency_p50_us"],
-        load_average_1_5_15=[list(x) for x in load],
+        today_no_spin_latency_p50_us=still.rounds[-1]["latency_p50_us"],
+        load_average_1_5_15=[list(x) for x in load_avg],
+    )
+
+
+ECHO = r"""
+import socket, sys, select
+poll = sys.argv[2] == "poll"
+s = socket.create_connection(("127.0.0.1", int(sys.argv[1])))
+s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+s.setblocking(False)
+while True:
+    if not poll:
+        select.select([s], [], [])
+    try:
+        data = s.recv(4096)
+    except BlockingIOError:
+        continue
+    if not data:
+        break
+    s.send(b"a" * 60)
+"""
+"""The other side of `test_tcp_round_trip`: answers each read with 60 bytes (about one
+HIL_ACTUATOR_CONTROLS), sleeping in select or polling the socket between messages."""
+ROUND_TRIPS = 5000
+
+
+@pytest.mark.parametrize("wait", ["sleep", "poll"])
+def test_tcp_round_trip(benchmark, wait):
+    """What the lockstep spin is for: a plain TCP ping-pong between two processes on loopback, 200
+    bytes out (about one step's messages) and 60 back, both sides sleeping in select between
+    messages, or both polling. No MAVLink, no policy: the cost of the handover alone."""
+    import select
+    import socket
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    child = subprocess.Popen([sys.executable, "-c", ECHO, str(server.getsockname()[1]), wait])
+    conn, _ = server.accept()
+    server.close()
+    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    conn.setblocking(False)
+    poll = wait == "poll"
+
+    def trips():
+        for _ in range(ROUND_TRIPS):
+            conn.send(b"s" * 200)
+            got = 0
+            while got < 60:
+                if not poll:
+                    select.select([conn], [], [], 5.0)
+                try:
+                    got += len(conn.recv(4096))
+                except BlockingIOError:
+                    pass
+
+    try:
+        rounds = 5 if not benchmark.disabled else 1
+        benchmark.pedantic(trips, rounds=rounds, iterations=1, warmup_rounds=1 if rounds > 1 else 0)
+    finally:
+        conn.close()
+        child.wait(10)
+    benchmark.extra_info.update(
+        round_trips_per_round=ROUND_TRIPS,
+        round_trip_us=benchmark.stats.stats.min / ROUND_TRIPS * 1e6 if benchmark.stats else None,
     )
 
 

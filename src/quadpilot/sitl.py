@@ -72,6 +72,7 @@ SIM_FLAGS = {
     "--estimator-noise": None,
     "--vehicle": "NAME|FILE.toml",
     "--start": "air|landed",
+    "--spin-us": "US",  # the node's too: checked by the simulator's parser, then read in _fly
 }
 
 
@@ -510,6 +511,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
                 signing_key=key,
                 command=commanded,
                 start="landed" if commanded else "air",
+                **({} if args.spin_us is None else {"spin_s": float(args.spin_us) / 1e6}),
             )
         )
         if args.tlog is not None:

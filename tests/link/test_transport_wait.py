@@ -1,6 +1,11 @@
 """`Link.recv` with a timeout waits for the socket before it reads (in lockstep the peer's answer is
 never there yet): a message that arrives during the wait is returned, one that does not come ends
-the wait on time, the peer's EOF and a link closed here are PeerClosed, and a zero timeout polls."""
+the wait on time, the peer's EOF and a link closed here are PeerClosed, and a zero timeout polls.
+
+A lockstep link polls its socket before it sleeps (`Link.spin_s`): an answer that comes within the
+window is taken without select(), a window that finds nothing backs off (the next 1, 2, 4, ... waits
+sleep at once) until an answer is caught again, the window counts against the timeout, the peer's
+EOF still ends the wait, and with one usable CPU there is no window."""
 
 import socket
 import threading
@@ -91,3 +96,109 @@ def test_the_peers_eof_and_a_closed_link_are_peer_closed():
     with pytest.raises(transport.PeerClosed):
         here2.recv(0.5)
     there2.close()
+
+
+def _send_later(link, delay_s, status=4):
+    def later():
+        time.sleep(delay_s)
+        link.mav.heartbeat_send(2, 0, 0, 0, status)
+        link.flush()
+
+    t = threading.Thread(target=later)
+    t.start()
+    return t
+
+
+class _Selects:
+    """Counts select() calls made by the transport module (the link sleeping)."""
+
+    def __init__(self, monkeypatch):
+        self.calls = 0
+        real = transport.select.select
+
+        def counting(*a):
+            self.calls += 1
+            return real(*a)
+
+        monkeypatch.setattr(transport.select, "select", counting)
+
+
+def test_an_answer_within_the_window_is_taken_without_sleeping(monkeypatch):
+    here, there = _pair()
+    selects = _Selects(monkeypatch)
+    try:
+        here.spin_s = 1.0
+        t = _send_later(there, 0.02)
+        msg = here.recv(2.0)
+        t.join()
+        assert msg is not None and msg.get_type() == "HEARTBEAT" and msg.system_status == 4
+        assert selects.calls == 0
+        here.spin_s = 0.0  # the same wait without a window sleeps in select
+        t = _send_later(there, 0.02, 5)
+        msg = here.recv(2.0)
+        t.join()
+        assert msg is not None and msg.system_status == 5
+        assert selects.calls >= 1
+    finally:
+        here.close()
+        there.close()
+
+
+def test_an_empty_window_backs_off_and_a_caught_answer_resumes_spinning(monkeypatch):
+    here, there = _pair()
+    selects = _Selects(monkeypatch)
+    fills = []
+    real_fill = here._fill
+    here._fill = lambda: (fills.append(1), real_fill())[1]
+    try:
+        here.spin_s = 0.005
+        spun = []
+        for _ in range(12):  # silence: which waits polled before sleeping?
+            fills.clear()
+            assert here.recv(0.01) is None
+            spun.append(len(fills) > 1)  # a window polls many times; a sleep reads only after select
+        # windows at waits 0, 2, 5, 10: each empty one skips the next 1, 2, 4, ... waits
+        assert spun == [True, False, True, False, False, True, False, False, False, False, True, False]
+        assert here._spin_skip == 7
+        for _ in range(7):  # sleep out the backoff
+            assert here.recv(0.001) is None
+        assert here._spin_skip == 0
+        calls = selects.calls
+        t = _send_later(there, 0.001)
+        assert here.recv(2.0) is not None  # caught in the window
+        t.join()
+        assert selects.calls == calls
+        assert here._spin_backoff == 0 and here._spin_skip == 0
+    finally:
+        here.close()
+        there.close()
+
+
+def test_the_window_counts_against_the_timeout():
+    here, there = _pair()
+    try:
+        here.spin_s = 5.0
+        t0 = time.monotonic()
+        assert here.recv(0.1) is None
+        assert 0.09 <= time.monotonic() - t0 < 0.5
+    finally:
+        here.close()
+        there.close()
+
+
+def test_the_peers_eof_ends_a_spinning_wait():
+    here, there = _pair()
+    here.spin_s = 1.0
+    there.close()
+    t0 = time.monotonic()
+    with pytest.raises(transport.PeerClosed, match="closed the connection"):
+        here.recv(2.0)
+    assert time.monotonic() - t0 < 0.5
+    here.close()
+
+
+def test_no_window_with_one_usable_cpu(monkeypatch):
+    monkeypatch.setattr(transport.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    assert transport.spin_window(0.0005) == 0.0
+    monkeypatch.setattr(transport.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    assert transport.spin_window(0.0005) == 0.0005

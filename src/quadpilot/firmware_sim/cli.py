@@ -151,6 +151,13 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         help="s, an episode ends after this silence",
     )
     p.add_argument("--max-steps", type=_int_at_least(1), default=d.max_steps, help="step bound of one episode")
+    p.add_argument(
+        "--spin-us",
+        type=_non_negative,
+        default=d.spin_s * 1e6,
+        metavar="US",
+        help=f"µs to poll for the peer's answer before sleeping, in lockstep (default {d.spin_s * 1e6:g}; 0: off)",
+    )
     p.add_argument("--json", metavar="OUT", default=None, help="write the stats and episode records as JSON on exit")
     p.add_argument(
         "--key",
@@ -202,6 +209,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             esc_timeout_s=args.esc_timeout,
             lockstep_timeout_s=args.lockstep_timeout,
             max_steps=args.max_steps,
+            spin_s=args.spin_us / 1e6,
             signing_key=read_key(args.key) if args.key else None,
         )
     except (ValueError, SigningError) as e:

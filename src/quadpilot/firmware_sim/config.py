@@ -18,7 +18,7 @@ from quadpilot.core.params import VehicleParams, get_preset
 from quadpilot.core.sensor_noise import SENSOR_NOISE_PRESETS, SensorNoise, get_sensor_noise
 from quadpilot.core.start import sample_start_states
 from quadpilot.link import wire
-from quadpilot.link.transport import Address, parse_address
+from quadpilot.link.transport import LOCKSTEP_SPIN_S, Address, parse_address
 
 from .plant import landed_state
 
@@ -98,6 +98,9 @@ class SimConfig:
     lockstep: bool = True
     """True: one physics step per HIL_ACTUATOR_CONTROLS, as fast as the peer answers. False:
     realtime, one step per dt of the host's monotonic clock, the last command held."""
+    spin_s: float = LOCKSTEP_SPIN_S
+    """s, in lockstep: poll for the peer's actuator message this long before sleeping
+    (`link.transport.Link.spin_s`; 0: sleep at once, off with one usable CPU)."""
     esc_timeout_s: float = 0.1
     """s, with no valid actuator command for this long the motors are cut to 0 (an ESC's signal-loss
     behaviour): host clock in realtime mode, simulated time in lockstep (where only a stream of
@@ -141,7 +144,7 @@ class SimConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        for name in ("init_pos_radius", "init_vel", "init_tilt_deg", "init_rate", "gust"):
+        for name in ("init_pos_radius", "init_vel", "init_tilt_deg", "init_rate", "gust", "spin_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a finite number ≥ 0, got {v!r}")

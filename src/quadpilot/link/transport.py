@@ -10,6 +10,8 @@ here, and pymavlink does what it is made for: encoding, parsing, CRC and signatu
   system call and parsed in one go, and the messages are handed out one at a time. Garbage
   becomes BAD_DATA messages (`bad_data_reason` names why), never an exception.
 - Outgoing messages are queued by the encoder and leave on `flush()`: one step, one TCP send.
+- In lockstep a link may poll its socket for a moment before it sleeps (`Link.spin_s`): the peer
+  answers within tens of microseconds there, and waking a sleeping process costs more than that.
 - Links speak MAVLink 2 with the common message set from the first byte: pymavlink's automatic
   version switch would otherwise change the dialect of the whole process (`mavutil.set_dialect`
   and the `MAVLINK20` environment variable) the moment a MAVLink 2 byte arrives. A link can instead
@@ -30,6 +32,7 @@ import errno
 import hashlib
 import hmac
 import ipaddress
+import os
 import select
 import socket
 import time
@@ -54,6 +57,15 @@ READ_SIZE = 65536
 MAX_DATAGRAM = 4096
 """Bytes: a longer UDP datagram is dropped unparsed. MAVLink 2 frames are at most 280 bytes and
 simulators send one or a few per datagram; parsing 64 KiB of junk in Python would stall a step."""
+LOCKSTEP_SPIN_S = 500e-6
+"""s a lockstep link polls its socket before it sleeps in select (`Link.spin_s`). On the 2-core VM
+of docs/benchmarks.md a TCP ping-pong between two processes takes about 77 µs per round trip when
+each side sleeps in select and about 9 µs when each polls; the simulator's step and the node's
+policy answer within about 100 µs, well inside the window."""
+SPIN_BACKOFF_MAX = 256
+"""After a spin that found nothing, the next 1, 2, 4, ... waits (at most this many) sleep without
+spinning: a peer that is slow, or that shares a CPU with the spinner, costs at most one window of
+polling per that many steps. A spin that finds a message starts spinning every wait again."""
 SIGNING_EPOCH_S = 1420070400
 """MAVLink 2 signing timestamps count 10 µs units since 2015-01-01 00:00 UTC."""
 
@@ -211,6 +223,8 @@ class Link:
         self.version = 2
         self.peer_version: int | None = None
         self._follow = False
+        self.spin_s = 0.0
+        self._spin_skip = self._spin_backoff = 0
 
     @property
     def mav(self):
@@ -266,15 +280,24 @@ class Link:
 
         With a timeout it waits for the socket first and then reads: in lockstep the peer's answer
         is never there yet when the last message has been handled, and reading first would cost a
-        system call (and an exception) that finds nothing, every step."""
+        system call (and an exception) that finds nothing, every step. With `spin_s` > 0 it first
+        polls the socket without sleeping for up to `spin_s` of the timeout (LOCKSTEP_SPIN_S),
+        backing off after a poll that found nothing (SPIN_BACKOFF_MAX)."""
         if self._pending:
             return self._pending.popleft()
         if timeout <= 0:
             self._fill()
             return self._pending.popleft() if self._pending else None
         deadline = time.monotonic() + timeout
-        left = timeout
-        while True:
+        if self.spin_s > 0:
+            if self._spin_skip:
+                self._spin_skip -= 1
+            else:
+                msg = self._spin(min(deadline, time.monotonic() + self.spin_s))
+                if msg is not None:
+                    return msg
+        left = deadline - time.monotonic()
+        while left > 0:
             try:
                 ready, _, _ = select.select([self.port], [], [], left)
             except (ValueError, OSError):  # a closed socket: reading says how (PeerClosed for TCP)
@@ -286,7 +309,18 @@ class Link:
             if self._pending:
                 return self._pending.popleft()
             left = deadline - time.monotonic()
-            if left <= 0:
+        return None
+
+    def _spin(self, end: float):
+        """Read without sleeping until a message is parsed or the clock passes `end`."""
+        while True:
+            self._fill()
+            if self._pending:
+                self._spin_backoff = 0
+                return self._pending.popleft()
+            if time.monotonic() >= end:
+                self._spin_backoff = min(2 * self._spin_backoff or 1, SPIN_BACKOFF_MAX)
+                self._spin_skip = self._spin_backoff
                 return None
 
     def send_message(self, cls, args) -> None:
@@ -552,3 +586,13 @@ def connect(address: str | Address, system: int, component: int, timeout_s: floa
             if time.monotonic() > deadline:
                 raise ConnectionError(f"no simulator at {a} after {timeout_s:g} s ({e.strerror or e})") from None
             time.sleep(0.05)
+
+
+def spin_window(spin_s: float) -> float:
+    """`spin_s` where polling can pay, 0 where it cannot: with one usable CPU the spinner would only
+    take the time the peer needs to answer."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on macOS
+        cpus = os.cpu_count() or 1
+    return spin_s if cpus >= 2 else 0.0

@@ -122,6 +122,9 @@ class NodeConfig:
     """s of simulated flight per episode (the steps' time_usec, not the host's clock)."""
     lockstep: bool = True
     """Set the lockstep flag in HIL_ACTUATOR_CONTROLS (the simulator advances one step per message)."""
+    spin_s: float = transport.LOCKSTEP_SPIN_S
+    """s, in lockstep: poll the simulator link this long before sleeping (`transport.Link.spin_s`;
+    0: sleep at once, off with one usable CPU)."""
     link_timeout_s: float = 0.1
     """s without a state message (host monotonic clock) before the failsafe latches."""
     first_state_timeout_s: float = 10.0
@@ -155,6 +158,8 @@ class NodeConfig:
     starts in flight); "landed", disarmed on the ground until the ground station arms it."""
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.spin_s) and self.spin_s >= 0):
+            raise ValueError(f"spin_s must be a finite number ≥ 0 (s), got {self.spin_s!r}")
         if self.start not in START_MODES:
             raise ValueError(f"start must be one of {START_MODES}, got {self.start!r}")
 
@@ -198,6 +203,7 @@ class Node:
             raise NodeError(str(e)) from None
         link = self._connect()
         link.tap = tap
+        link.spin_s = transport.spin_window(cfg.spin_s) if cfg.lockstep else 0.0
         if cfg.speak_as_peer and cfg.signing_key is None:
             link.speak_as_peer()
         gcs = None
