@@ -363,7 +363,7 @@ ALLOWED: tuple[tuple[str, str], ...] = (
         "rates and clocks are configuration: the control loop (EnvConfig.dt), PX4/MAVLink message rates, the "
         "STM32F4's clock",
     ),
-    (r"\bup\s+to\s+500\s+µs", "the lockstep spin window (link.transport.LOCKSTEP_SPIN_S, --spin-us)"),
+    (r"\bup\s+to\s+500\s+µs", "the lockstep spin window (link.spin.LOCKSTEP_SPIN_S, --spin-us)"),
     (r"\b95\s+%", "the success bar: 95 % of 100 evaluation episodes (train.run.SUCCESS_BAR)"),
     (
         r"last\s+2\s+s|\b5\s+s\s+episode|episodes\s+of\s+5\s+s|\b5\s+cm\b(?!/)",

@@ -85,6 +85,22 @@ def int_in(lo: int, hi: int):
     return parse
 
 
+def float_in(lo: float, hi: float):
+    """An argparse type: a number in [lo, hi], else a one-line error saying the range."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not lo <= v <= hi:  # False for NaN too
+            raise argparse.ArgumentTypeError(f"expected a number from {lo:,.10g} to {hi:,.10g}, got {text!r}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
 def positive_float(text: str) -> float:
     """An argparse type: a finite number > 0, else a one-line error."""
     try:

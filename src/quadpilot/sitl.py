@@ -72,7 +72,6 @@ SIM_FLAGS = {
     "--estimator-noise": None,
     "--vehicle": "NAME|FILE.toml",
     "--start": "air|landed",
-    "--spin-us": "US",  # the node's too: checked by the simulator's parser, then read in _fly
 }
 
 
@@ -493,7 +492,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
         listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
         cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", listen]
         cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed), "--task", task]
-        cmd += ["--lockstep" if args.lockstep else "--realtime", *rest]
+        cmd += ["--lockstep" if args.lockstep else "--realtime", f"--spin-us={args.spin_us}", *rest]
         if args.key is not None:
             cmd += ["--key", str(args.key)]
         sim = _Simulator(cmd)
@@ -511,7 +510,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
                 signing_key=key,
                 command=commanded,
                 start="landed" if commanded else "air",
-                **({} if args.spin_us is None else {"spin_s": float(args.spin_us) / 1e6}),
+                spin_s=args.spin_us / 1e6,
             )
         )
         if args.tlog is not None:

@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_output, atomic_write
+from quadpilot.console import atomic_output, atomic_write, float_in
+from quadpilot.link.spin import LOCKSTEP_SPIN_S, MAX_SPIN_US
 
 MAX_FALLBACK_FRACTION = 0.10
 """More than this share of the steps flown by the fallback (or blind) fails the run (exit 1)."""
@@ -113,7 +114,15 @@ target_type.__name__ = "target"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The flags only --node-only takes."""
+    """--spin-us, and the flags only --node-only takes."""
+    p.add_argument(
+        "--spin-us",
+        type=float_in(0.0, MAX_SPIN_US),
+        default=LOCKSTEP_SPIN_S * 1e6,
+        metavar="US",
+        help="In lockstep, µs the node and the simulator poll for each other's answer before they sleep: "
+        f"faster on an idle machine, a busy core each while waiting. 0: off. Default: {LOCKSTEP_SPIN_S * 1e6:g}",
+    )
     g = p.add_argument_group("--node-only (against any PX4-API simulator)")
     g.add_argument(
         "--home",
@@ -256,6 +265,7 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
         home=args.home,
         target=args.target,
         link_timeout_s=LINK_TIMEOUT_S,
+        spin_s=args.spin_us / 1e6,
     )
     tlog = None
     try:

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from quadpilot.link import transport
+from quadpilot.link import spin, transport
 
 
 def _pair():
@@ -164,6 +164,9 @@ def test_an_empty_window_backs_off_and_a_caught_answer_resumes_spinning(monkeypa
             assert here.recv(0.001) is None
         assert here._spin_skip == 0
         calls = selects.calls
+        here.spin_s = 1.0  # a window the sender thread surely answers within (it needs the GIL too)
+        here.mav.heartbeat_send(2, 0, 0, 0, 3)  # a question: what comes next answers it
+        here.flush()
         t = _send_later(there, 0.001)
         assert here.recv(2.0) is not None  # caught in the window
         t.join()
@@ -198,7 +201,58 @@ def test_the_peers_eof_ends_a_spinning_wait():
 
 
 def test_no_window_with_one_usable_cpu(monkeypatch):
-    monkeypatch.setattr(transport.os, "sched_getaffinity", lambda pid: {0}, raising=False)
-    assert transport.spin_window(0.0005) == 0.0
-    monkeypatch.setattr(transport.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
-    assert transport.spin_window(0.0005) == 0.0005
+    monkeypatch.setattr(spin.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    assert spin.spin_window(0.0005) == 0.0
+    monkeypatch.setattr(spin.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    assert spin.spin_window(0.0005) == 0.0005
+
+
+def test_the_backoff_stops_at_its_cap():
+    here, there = _pair()
+    try:
+        here.spin_s = 0.0001
+        for _ in range(600):  # windows at waits 0, 2, 5, 10, ...: 9 empty ones reach the cap
+            assert here.recv(0.0002) is None
+        assert here._spin_backoff == spin.SPIN_BACKOFF_MAX
+    finally:
+        here.close()
+        there.close()
+
+
+def test_the_tail_of_a_step_sent_in_two_writes_does_not_reset_the_backoff():
+    """A slow lockstep peer that sends each step in two writes (RotorPy's PX4Multirotor:
+    hil_state_quaternion_send, then hil_sensor_send): a window may catch the second write, but that
+    answers nothing sent, and the empty windows before the first write must still back off."""
+    here, there = _pair()
+    try:
+        here.spin_s = 0.002
+        empty = 0
+        for _ in range(20):
+            here.mav.heartbeat_send(2, 0, 0, 0, 3)  # the answer to the last step
+            here.flush()
+            spins = here._spin_skip == 0
+            t = _send_later(there, 0.01, 4)  # the peer's slow physics step, then the step's first write
+            assert here.recv(1.0).system_status == 4
+            t.join()
+            empty += spins
+            there.mav.heartbeat_send(2, 0, 0, 0, 5)  # its second write
+            there.flush()
+            assert here.recv(1.0).system_status == 5
+        assert empty <= 5  # the waits for a step spin at 0, 2, 5, 10, 19 (each empty, backing off)
+    finally:
+        here.close()
+        there.close()
+
+
+def test_a_udp_listener_unpinned_for_its_next_peer_starts_without_a_window():
+    """The simulator's UDP link serves every episode: between peers it waits for a first message
+    at no window, and the last peer's backoff does not carry over."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    link = transport.DatagramLink(sock, "udp:127.0.0.1:0", 200, 200, peer=("127.0.0.1", 9))
+    try:
+        link.spin_s, link._spin_backoff, link._spin_skip = 0.0005, 8, 3
+        link.pin(None)
+        assert (link.spin_s, link._spin_backoff, link._spin_skip) == (0.0, 0, 0)
+    finally:
+        link.close()

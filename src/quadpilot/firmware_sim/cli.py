@@ -10,11 +10,12 @@ import dataclasses
 import math
 import sys
 
-from quadpilot.console import Parser, UsageError, atomic_write
+from quadpilot.console import Parser, UsageError, atomic_write, float_in
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
 from quadpilot.core.params import PRESETS
 from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError, is_vehicle_path, resolve_vehicle
+from quadpilot.link.spin import MAX_SPIN_US
 from quadpilot.link.transport import SigningError, SimulatorError, parse_address, read_key
 
 from .config import DEFAULT_WIND_DRAG, START_MODES, SimConfig
@@ -153,7 +154,7 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
     p.add_argument("--max-steps", type=_int_at_least(1), default=d.max_steps, help="step bound of one episode")
     p.add_argument(
         "--spin-us",
-        type=_non_negative,
+        type=float_in(0.0, MAX_SPIN_US),
         default=d.spin_s * 1e6,
         metavar="US",
         help=f"µs to poll for the peer's answer before sleeping, in lockstep (default {d.spin_s * 1e6:g}; 0: off)",

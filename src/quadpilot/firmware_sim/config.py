@@ -18,7 +18,8 @@ from quadpilot.core.params import VehicleParams, get_preset
 from quadpilot.core.sensor_noise import SENSOR_NOISE_PRESETS, SensorNoise, get_sensor_noise
 from quadpilot.core.start import sample_start_states
 from quadpilot.link import wire
-from quadpilot.link.transport import LOCKSTEP_SPIN_S, Address, parse_address
+from quadpilot.link.spin import LOCKSTEP_SPIN_S, check_spin
+from quadpilot.link.transport import Address, parse_address
 
 from .plant import landed_state
 
@@ -144,10 +145,11 @@ class SimConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        for name in ("init_pos_radius", "init_vel", "init_tilt_deg", "init_rate", "gust", "spin_s"):
+        for name in ("init_pos_radius", "init_vel", "init_tilt_deg", "init_rate", "gust"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a finite number ≥ 0, got {v!r}")
+        check_spin(self.spin_s)
         for name in ("wind", "target"):
             v = getattr(self, name)
             if len(v) != 3 or not all(math.isfinite(float(x)) for x in v):

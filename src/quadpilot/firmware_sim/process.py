@@ -29,7 +29,8 @@ import numpy as np
 from quadpilot.core import dynamics
 from quadpilot.core.reward import RewardConfig, crashed
 from quadpilot.core.state import PITCH, POS, ROLL, X, Y, Z
-from quadpilot.link.transport import Address, Listener, PeerClosed, spin_window
+from quadpilot.link import spin
+from quadpilot.link.transport import Address, Listener, PeerClosed
 
 from .config import SimConfig
 from .plant import Plant
@@ -238,7 +239,7 @@ class Simulator:
         n = ep.steps_done = 0
         last_valid = 0  # step of the last applied command; the ESC timeout runs on simulated time here
         cut = False
-        link.spin_s = spin_window(cfg.spin_s)
+        link.spin_s = spin.spin_window(cfg.spin_s)
         while n < cfg.max_steps:
             deadline = time.monotonic() + cfg.lockstep_timeout_s
             msg = None

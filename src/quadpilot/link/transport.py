@@ -10,8 +10,6 @@ here, and pymavlink does what it is made for: encoding, parsing, CRC and signatu
   system call and parsed in one go, and the messages are handed out one at a time. Garbage
   becomes BAD_DATA messages (`bad_data_reason` names why), never an exception.
 - Outgoing messages are queued by the encoder and leave on `flush()`: one step, one TCP send.
-- In lockstep a link may poll its socket for a moment before it sleeps (`Link.spin_s`): the peer
-  answers within tens of microseconds there, and waking a sleeping process costs more than that.
 - Links speak MAVLink 2 with the common message set from the first byte: pymavlink's automatic
   version switch would otherwise change the dialect of the whole process (`mavutil.set_dialect`
   and the `MAVLINK20` environment variable) the moment a MAVLink 2 byte arrives. A link can instead
@@ -32,7 +30,6 @@ import errno
 import hashlib
 import hmac
 import ipaddress
-import os
 import select
 import socket
 import time
@@ -42,6 +39,8 @@ from pathlib import Path
 
 from pymavlink.dialects.v10 import common as mavlink1
 from pymavlink.dialects.v20 import common as mavlink2
+
+from .spin import SPIN_BACKOFF_MAX
 
 SIM_SYSTEM_ID = 200
 """MAVLink system id of the simulator's messages: a system of its own, not the autopilot's (system 1,
@@ -57,15 +56,6 @@ READ_SIZE = 65536
 MAX_DATAGRAM = 4096
 """Bytes: a longer UDP datagram is dropped unparsed. MAVLink 2 frames are at most 280 bytes and
 simulators send one or a few per datagram; parsing 64 KiB of junk in Python would stall a step."""
-LOCKSTEP_SPIN_S = 500e-6
-"""s a lockstep link polls its socket before it sleeps in select (`Link.spin_s`). On the 2-core VM
-of docs/benchmarks.md a TCP ping-pong between two processes takes about 77 µs per round trip when
-each side sleeps in select and about 9 µs when each polls; the simulator's step and the node's
-policy answer within about 100 µs, well inside the window."""
-SPIN_BACKOFF_MAX = 256
-"""After a spin that found nothing, the next 1, 2, 4, ... waits (at most this many) sleep without
-spinning: a peer that is slow, or that shares a CPU with the spinner, costs at most one window of
-polling per that many steps. A spin that finds a message starts spinning every wait again."""
 SIGNING_EPOCH_S = 1420070400
 """MAVLink 2 signing timestamps count 10 µs units since 2015-01-01 00:00 UTC."""
 
@@ -225,6 +215,7 @@ class Link:
         self._follow = False
         self.spin_s = 0.0
         self._spin_skip = self._spin_backoff = 0
+        self._answer_due = False  # sent since the last message arrived: the next one answers it
 
     @property
     def mav(self):
@@ -252,6 +243,7 @@ class Link:
 
     # The codec calls write() for every message it encodes.
     def write(self, buf) -> None:
+        self._answer_due = True
         self._out += buf
         if self.tap is not None:
             self.tap("out", bytes(buf))
@@ -280,9 +272,8 @@ class Link:
 
         With a timeout it waits for the socket first and then reads: in lockstep the peer's answer
         is never there yet when the last message has been handled, and reading first would cost a
-        system call (and an exception) that finds nothing, every step. With `spin_s` > 0 it first
-        polls the socket without sleeping for up to `spin_s` of the timeout (LOCKSTEP_SPIN_S),
-        backing off after a poll that found nothing (SPIN_BACKOFF_MAX)."""
+        system call (and an exception) that finds nothing, every step. With `spin_s` > 0 it polls
+        first (`_spin`, `link.spin`)."""
         if self._pending:
             return self._pending.popleft()
         if timeout <= 0:
@@ -312,11 +303,14 @@ class Link:
         return None
 
     def _spin(self, end: float):
-        """Read without sleeping until a message is parsed or the clock passes `end`."""
+        """Read without sleeping until a message comes or the clock passes `end`. Only an answer to what
+        was sent resets the backoff, not the tail of a step sent in two writes (RotorPy's PX4Multirotor)."""
+        answer = self._answer_due
         while True:
             self._fill()
             if self._pending:
-                self._spin_backoff = 0
+                if answer:
+                    self._spin_backoff = 0
                 return self._pending.popleft()
             if time.monotonic() >= end:
                 self._spin_backoff = min(2 * self._spin_backoff or 1, SPIN_BACKOFF_MAX)
@@ -335,6 +329,7 @@ class Link:
     def _parse(self, data: bytes) -> None:
         msgs = self._codec.parse_buffer(data)
         if msgs:
+            self._answer_due = False
             for m in msgs:
                 if m.get_type() != "BAD_DATA":
                     raw = m.get_msgbuf()
@@ -458,10 +453,12 @@ class DatagramLink(Link):
         if peer is None:
             self._reset_parser()
             self._pending.clear()
+            self.spin_s, self._spin_skip, self._spin_backoff = 0.0, 0, 0  # a new peer starts afresh
         self.peer = peer
         self.peer_label = "udp:{}:{}".format(*peer[:2]) if peer else self.address
 
     def write(self, buf) -> None:
+        self._answer_due = True
         if self.tap is not None:
             self.tap("out", bytes(buf))
         if self.peer is None:
@@ -586,13 +583,3 @@ def connect(address: str | Address, system: int, component: int, timeout_s: floa
             if time.monotonic() > deadline:
                 raise ConnectionError(f"no simulator at {a} after {timeout_s:g} s ({e.strerror or e})") from None
             time.sleep(0.05)
-
-
-def spin_window(spin_s: float) -> float:
-    """`spin_s` where polling can pay, 0 where it cannot: with one usable CPU the spinner would only
-    take the time the peer needs to answer."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on macOS
-        cpus = os.cpu_count() or 1
-    return spin_s if cpus >= 2 else 0.0

@@ -77,7 +77,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.dynamics import NUM_MOTORS
 from quadpilot.core.state import POS, YAW
-from quadpilot.link import transport, wire
+from quadpilot.link import spin, transport, wire
+from quadpilot.link.spin import LOCKSTEP_SPIN_S, check_spin
 
 from .commander import Commander
 from .flight_log import EpisodeLog
@@ -122,7 +123,7 @@ class NodeConfig:
     """s of simulated flight per episode (the steps' time_usec, not the host's clock)."""
     lockstep: bool = True
     """Set the lockstep flag in HIL_ACTUATOR_CONTROLS (the simulator advances one step per message)."""
-    spin_s: float = transport.LOCKSTEP_SPIN_S
+    spin_s: float = LOCKSTEP_SPIN_S
     """s, in lockstep: poll the simulator link this long before sleeping (`transport.Link.spin_s`;
     0: sleep at once, off with one usable CPU)."""
     link_timeout_s: float = 0.1
@@ -158,8 +159,7 @@ class NodeConfig:
     starts in flight); "landed", disarmed on the ground until the ground station arms it."""
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.spin_s) and self.spin_s >= 0):
-            raise ValueError(f"spin_s must be a finite number ≥ 0 (s), got {self.spin_s!r}")
+        check_spin(self.spin_s)
         if self.start not in START_MODES:
             raise ValueError(f"start must be one of {START_MODES}, got {self.start!r}")
 
@@ -203,7 +203,7 @@ class Node:
             raise NodeError(str(e)) from None
         link = self._connect()
         link.tap = tap
-        link.spin_s = transport.spin_window(cfg.spin_s) if cfg.lockstep else 0.0
+        link.spin_s = spin.spin_window(cfg.spin_s) if cfg.lockstep else 0.0
         if cfg.speak_as_peer and cfg.signing_key is None:
             link.speak_as_peer()
         gcs = None
