@@ -1,4 +1,4 @@
-"""Environment speed in drone-steps per second, all measured in one run (DESIGN.md, style rule 10).
+"""Environment speed in drone-steps per second, all measured in one run (docs/architecture.md, style rule 10).
 
     (a) `quadpilot.core.dynamics.step` on N drones, float32 and float64;
     (b) `QuadVectorEnv` (hover) on N drones: action mapping, dynamics, observation, reward,

@@ -1,5 +1,5 @@
 """What domain randomisation costs the vector environment, measured in one run against
-the same environment without it (DESIGN.md, style rule 10).
+the same environment without it (docs/architecture.md, style rule 10).
 
     QuadVectorEnv("hover") on N drones (128: the training default; 4096), randomization None,
     "params" (mass, inertia, k_f, k_m, motor lag: a new ParamBatch and re-derived constants at

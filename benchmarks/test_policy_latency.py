@@ -1,4 +1,4 @@
-"""Batch-1 policy latency, every backend and its baseline measured in one run (DESIGN.md, rule 10).
+"""Batch-1 policy latency, every backend and its baseline measured in one run (docs/architecture.md, rule 10).
 
 For the shipped hover MLP (18 → 64 → 64 → 4, tanh) and an LSTM of the same width (18 → LSTM 64 →
 4, built by the training code's `RecurrentActorCritic` and exported the same way), one `act(obs)`:

@@ -373,7 +373,7 @@ ALLOWED: tuple[tuple[str, str], ...] = (
     (
         r"0\.5\s+→\s+1\s+→\s+2\s+m|within\s+1\s+m\b|\b1\s+m\s+circle\s+at\s+1\s+m/s|σ\s+0?\.?\d+\s+m|\b1\s+m\s+offset|"
         r"rest\s+1\s+m\s+from|\b2\s+m\s+targets",
-        "task definitions: the start radius, the curriculum's radii, seed 001's circle, the reward's Gaussian "
+        "task definitions: the start radius, the curriculum's radii, the ENPM 667 circle, the reward's Gaussian "
         "widths, the offset scenario, waypoint targets",
     ),
     (

@@ -149,3 +149,37 @@ def test_no_comment_or_docstring_cites_an_issue_number():
             if ISSUE_NUMBER.search(line):
                 found.append(f"{path.relative_to(ROOT)}:{n}: {line.strip()[:100]}")
     assert not found, "cites an issue number:\n" + "\n".join(found)
+
+
+# A reader of the repository has only the repository: the documents the project was started from are
+# cited by their own names (the course brief, the ENPM 667 project, a paper, a PX4 file), never by a
+# path outside the repository or by the number they had where the project began.
+OUTSIDE_CITATION = re.compile(r"(?i)\.\./shared\b|\bshared/(seeds|DESIGN)|\bDESIGN\.md\b|\bseed 00\d\b")
+CITING_FILES = ("README.md", "docs", "src", "tests", "benchmarks", "models", "pyproject.toml")
+TEXT_SUFFIXES = {".md", ".py", ".toml", ".txt", ".json", ".c", ".h", ".cpp"}
+
+
+def outside_citations(root: Path) -> list[str]:
+    found = []
+    for name in CITING_FILES:
+        top = root / name
+        paths = [top] if top.is_file() else sorted(p for p in top.rglob("*") if p.suffix in TEXT_SUFFIXES)
+        for path in paths:
+            if "egg-info" in str(path) or path == Path(__file__):
+                continue
+            for n, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+                if OUTSIDE_CITATION.search(line):
+                    found.append(f"{path.relative_to(root)}:{n}: {line.strip()[:100]}")
+    return found
+
+
+def test_no_file_cites_a_path_outside_the_repository_or_a_seed_by_number():
+    found = outside_citations(ROOT)
+    assert not found, "cites what a reader of the repository does not have:\n" + "\n".join(found)
+
+
+def test_outside_citation_check_finds_planted_ones(tmp_path):
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "a.md").write_text("as ../shared/DESIGN.md says\nfine\nSeed 001's table\n")
+    (tmp_path / "README.md").write_text("see shared/seeds/000_x.txt\n")
+    assert [f.split(":")[1] for f in outside_citations(tmp_path)] == ["1", "1", "3"]

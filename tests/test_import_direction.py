@@ -1,4 +1,4 @@
-"""DESIGN.md's import direction: runtime and firmware_sim never pull in torch, gymnasium or the
+"""docs/architecture.md's import direction: runtime and firmware_sim never pull in torch, gymnasium or the
 training side; `import quadpilot` alone stays light."""
 
 import subprocess

@@ -2,7 +2,7 @@
 
 Each flight builds the observation with `core.build_observation` (float32, as the runtime does),
 asks the controller for rotor commands, and steps `core.dynamics.step` for one drone at 100 Hz.
-Frames: world ENU (z up), body FLU. Success is the hover bar of DESIGN.md: no crash, mean position
+Frames: world ENU (z up), body FLU. Success is the hover bar of docs/architecture.md: no crash, mean position
 error over the last 2 s of a 5 s flight ≤ 5 cm.
 """
 

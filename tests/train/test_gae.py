@@ -58,7 +58,7 @@ def test_matches_a_per_drone_reference_loop_on_random_data(seed):
 
 
 def test_last_step_advantage_is_the_td_error():
-    """Seed 000's check: nothing follows the rollout's last step, so Â_T = δ_T."""
+    """The course brief's check: nothing follows the rollout's last step, so Â_T = δ_T."""
     rng = np.random.default_rng(3)
     T, N, gamma = 16, 8, 0.99
     r, v, nv = rng.normal(size=(3, T, N))

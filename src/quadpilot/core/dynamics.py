@@ -21,8 +21,8 @@ metre of arm, and its spin) scaled by each drone's arm. A rotor at (x_i, y_i) li
 (angular momentum +z) is driven by a +z motor torque, so its reaction on the body is −k_m·F_i about
 z (`core.params.SPINS`). So τ_x = Σ y_i·F_i, τ_y = −Σ x_i·F_i, τ_z = −Σ spin_i·k_m·F_i, for any
 positions and any output order (`core.params.allocation_matrix` is the same map as a matrix). For
-PX4's quad-X (`MOTOR_LAYOUT`, the layout of every vehicle saved without a rotor list) this is seed
-001's roll and pitch arrangement, τ_x ∝ (−F1+F2+F3−F4), τ_y ∝ (F1−F2+F3−F4); seed 001's yaw row
+PX4's quad-X (`MOTOR_LAYOUT`, the layout of every vehicle saved without a rotor list) this is the ENPM 667
+project's roll and pitch arrangement, τ_x ∝ (−F1+F2+F3−F4), τ_y ∝ (F1−F2+F3−F4); the ENPM 667 project's yaw row
 (−F1+F2−F3+F4) pairs adjacent rotors, which no X frame does, so the yaw row follows the physics.
 
 Rotor speed: the commanded speed command·ω_max is clipped to [ω_min, ω_max] (RotorPy 3.0.0 does the
@@ -74,7 +74,7 @@ MOTOR_LAYOUT = {
     "rear_right": (-1.0, -1.0, -1),
 }
 MOTOR_NAMES = tuple(MOTOR_LAYOUT)
-DT = 0.01  # s, the control step of seed 000
+DT = 0.01  # s, the control step of the course brief
 _TWO_PI = 2.0 * math.pi
 _INV_TWO_PI = 1.0 / _TWO_PI
 
@@ -206,7 +206,7 @@ def _wrench_maker(layout: tuple):
     The mixer is written out as one expression per row and compiled, so that stepping costs what a
     hand-written mixer costs: each row's largest |coefficient| g goes into a per-drone factor, so
     the rows of a symmetric frame (every |coefficient| equal or 0: quad-X, "+") are sums and
-    differences of the rotor thrusts times one factor, exactly the quad-X rows seed 001 writes out;
+    differences of the rotor thrusts times one factor, exactly the quad-X rows the ENPM 667 project writes out;
     any other coefficient is one more multiplication. `make(a0, a1, a2, k...)` binds the per-drone
     factors (arm·g, k_m·g) and coefficients of a batch without compiling again (domain randomisation
     makes a new batch at every reset). The source holds only rotor indices, signs and names made

@@ -1,10 +1,10 @@
 """What an episode asks of the vehicle, and when it succeeded: one definition for the training
 environments' evaluation and for SITL, so that "success" means the same everywhere.
 
-Tasks (seed 000 and seed 001; the training environments' defaults, `train.envs.make_config`):
+Tasks (the course brief and the ENPM 667 project; the training environments' defaults, `train.envs.make_config`):
 - hover: start within `HOVER_START_RADIUS` of home (0, 0, 2) m, hold home.
 - waypoint: start at home (0, 0, 3) m, reach a target uniform in a ball of `WAYPOINT_RADIUS`
-  (the last curriculum stage, seed 000's 0.5 → 1 → 2 m) around it, and hold it.
+  (the last curriculum stage, the course brief's 0.5 → 1 → 2 m) around it, and hold it.
 - circle: follow a point moving counter-clockwise round a circle of `CIRCLE_RADIUS` at
   `CIRCLE_SPEED` about home (0, 0, 2) m, starting within `CIRCLE_START_RADIUS` of its start point.
 
@@ -12,7 +12,7 @@ Success: hover and waypoint, the episode does not crash and the mean distance to
 its last `SUCCESS_WINDOW_S` is at most `SUCCESS_TOLERANCE_M`. Circle: no crash, and over the
 second half of a two-lap flight (the first lap is the approach) the RMS radial error is at most
 `CIRCLE_RADIAL_TOLERANCE_M` and the mean absolute tangential-speed error at most
-`CIRCLE_SPEED_TOLERANCE_MPS` (seed 001's two circle errors, `core.reward.circle_errors`).
+`CIRCLE_SPEED_TOLERANCE_MPS` (the ENPM 667 project's two circle errors, `core.reward.circle_errors`).
 
 Every task also holds its heading (`holds_heading`, the yaw rule): over the same last
 `SUCCESS_WINDOW_S`, the mean |yaw rate| is at most `YAW_RATE_TOLERANCE_RAD_S` and the mean heading

@@ -27,7 +27,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-GRAVITY = 9.81  # m/s^2, standard gravity rounded as in seed 000/001
+GRAVITY = 9.81  # m/s^2, standard gravity rounded as in the course brief and the ENPM 667 project
 
 NUM_MOTORS = 4
 """Rotors per vehicle. The dynamics step any number; the policy's action, the ONNX contract
@@ -362,7 +362,7 @@ _VEHICLE_LIMITS = {
     "omega_min": (0.0, ">= 0"),
 }
 
-# The seed vehicle (seed 001 after Pi et al. 2020): mass, arm and inertia as published.
+# The seed vehicle (the ENPM 667 project after Pi et al. 2020): mass, arm and inertia as published.
 # The seeds give no rotor data, so the rotor is a 5-inch (0.127 m) propeller, the largest that
 # fits an X frame with 0.105 m arms (adjacent rotor axes 0.148 m apart). Static thrust
 # coefficient C_T ≈ 0.11 and power coefficient C_P ≈ 0.045 are typical of 5-inch propellers in the
@@ -373,11 +373,11 @@ _VEHICLE_LIMITS = {
 # 2.2, the usual margin for a camera-class quadrotor; hover then sits at ω/ω_max ≈ 0.68.
 SEED_VEHICLE = VehicleParams(
     name="seed",
-    mass=0.665,  # kg, seed 001 parameter table
-    arm=0.105,  # m, seed 001 parameter table
-    ixx=0.0023,  # kg·m², seed 001 parameter table
-    iyy=0.0025,  # kg·m², seed 001 parameter table
-    izz=0.0037,  # kg·m², seed 001 parameter table
+    mass=0.665,  # kg, ENPM 667 project's parameter table
+    arm=0.105,  # m, ENPM 667 project's parameter table
+    ixx=0.0023,  # kg·m², ENPM 667 project's parameter table
+    iyy=0.0025,  # kg·m², ENPM 667 project's parameter table
+    izz=0.0037,  # kg·m², ENPM 667 project's parameter table
     k_f=8.9e-7,  # N/(rad/s)², 5-inch prop, C_T 0.11 (UIUC propeller data), derivation above
     k_m=0.0083,  # m, C_P/(2π·C_T)·D with C_P 0.045, derivation above
     omega_max=2000.0,  # rad/s, thrust-to-weight 2.2, derivation above

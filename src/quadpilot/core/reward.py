@@ -1,7 +1,7 @@
 """Reward and termination maths, pure and batched over a leading drone axis.
 
-Shapes follow seed 000: a large penalty on a crash (altitude < 0 or |roll|, |pitch| > 60°), a
-Gaussian reward on position error, a small penalty on angular rate. Circle adds seed 001's radius
+Shapes follow the course brief: a large penalty on a crash (altitude < 0 or |roll|, |pitch| > 60°), a
+Gaussian reward on position error, a small penalty on angular rate. Circle adds the ENPM 667 project's radius
 and tangential-speed errors. Every per-step reward is bounded above by the sum of its Gaussians' weights.
 A heading term (a Gaussian on the heading error and a yaw-rate penalty) is added where the caller
 gives the heading error: a hover holds its heading too.
@@ -56,15 +56,15 @@ class RewardConfig:
     crash_penalty: float = 10.0
     """Paid once on the step that ends in a crash or leaves the flight area."""
     max_tilt_deg: float = 60.0
-    """deg, |roll| or |pitch| above this is a crash (seed 000)."""
+    """deg, |roll| or |pitch| above this is a crash (the course brief)."""
     max_distance: float = 5.0
     """m, leaving this distance from the target ends the episode like a crash."""
     radius_weight: float = 0.5
-    """Circle: weight of the Gaussian on radius error (seed 001's distance error)."""
+    """Circle: weight of the Gaussian on radius error (the ENPM 667 project's distance error)."""
     radius_sigma: float = 0.1
     """m, circle: width of the radius-error Gaussian."""
     speed_weight: float = 0.5
-    """Circle: weight of the Gaussian on tangential-speed error (seed 001's velocity error)."""
+    """Circle: weight of the Gaussian on tangential-speed error (the ENPM 667 project's velocity error)."""
     speed_sigma: float = 0.2
     """m/s, circle: width of the speed-error Gaussian."""
 
@@ -116,11 +116,11 @@ def hover_reward(
 
 
 def circle_errors(state: np.ndarray, center: np.ndarray, radius, speed) -> tuple[np.ndarray, np.ndarray]:
-    """Seed 001's circle errors: (radius error, tangential-speed error), each (N,).
+    """The ENPM 667 project's circle errors: (radius error, tangential-speed error), each (N,).
 
     radius error = ρ − R with ρ the horizontal distance to the centre; tangential speed is
     (r × v)_z / ρ, positive counter-clockwise seen from above, so the error is that minus the
-    desired speed (seed 001 writes x·v_y − y·x_v − R·v, the same up to the factor ρ)."""
+    desired speed (the ENPM 667 project writes x·v_y − y·x_v − R·v, the same up to the factor ρ)."""
     dx, dy = state[:, X] - center[..., 0], state[:, Y] - center[..., 1]
     rho = np.sqrt(dx * dx + dy * dy)
     v_tan = (dx * state[:, VY] - dy * state[:, VX]) / np.maximum(rho, 1e-6)
@@ -138,7 +138,7 @@ def circle_reward(
     heading_error=None,
 ) -> np.ndarray:
     """(N,) reward for following a circle: the hover reward towards the moving target point, plus
-    seed 001's radius and tangential-speed terms."""
+    the ENPM 667 project's radius and tangential-speed terms."""
     e_r, e_v = circle_errors(state, center, radius, speed)
     r = hover_reward(state, pos_error, crash, cfg, heading_error)
     return (

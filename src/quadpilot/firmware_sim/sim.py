@@ -1,5 +1,5 @@
 """The simulator side of software-in-the-loop: `core.dynamics` served over MAVLink like a PX4
-simulator (PX4's "Simulator MAVLink API"; DESIGN.md "The wire").
+simulator (PX4's "Simulator MAVLink API"; docs/architecture.md, "How a MAVLink message flows").
 
 The simulator listens (TCP 127.0.0.1:4560 by default, UDP as an option) and serves one episode per
 connection. This module gathers its public names; each part has its module:

@@ -20,7 +20,7 @@ goes to a temporary name first and is renamed into place, so concurrent processe
 half-written library.
 
 A shared library runs code as it is loaded (constructors), before any golden vector is checked, so
-the cache is a trust boundary (DESIGN.md, "Trust boundaries"). Rules:
+the cache is a trust boundary (docs/architecture.md, "Trust boundaries"). Rules:
 - The cache root, `c/` and the key directory are directories (not symlinks) owned by this user and
   writable by no one else; they are created 0700. If one of them is group- or world-writable or
   belongs to someone else, the cache is not used: the library is built in a fresh private temporary

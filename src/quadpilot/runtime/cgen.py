@@ -19,7 +19,7 @@ a tanh action head (SAC) the command is computed as the graph does, u_hover·√
 p = e^(2·min(z, 0)), q = e^(−2·max(z, 0)): the same function as u_hover·√(1 + tanh z) without the
 cancellation of 1 + tanh z near a = −1, which the √ would magnify to ~1e-4.
 
-The file is untrusted (DESIGN.md, "Trust boundaries"), and generated code is compiled and loaded,
+The file is untrusted (docs/architecture.md, "Trust boundaries"), and generated code is compiled and loaded,
 so nothing from the file reaches the text except numbers the generator formats itself
 (`ctext.c_float`, and integers it computed): no metadata string and no initializer name. The text in
 the header and the comments comes from this runtime's own tables (the observation layout of

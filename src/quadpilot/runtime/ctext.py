@@ -2,7 +2,7 @@
 define, and how numbers and text are written into them. Used by the generator (`cgen`) and by the
 timing program (`cbench`).
 
-The generated text is compiled and loaded, and the model file it comes from is untrusted (DESIGN.md,
+The generated text is compiled and loaded, and the model file it comes from is untrusted (docs/architecture.md,
 "Trust boundaries"): a number goes in only as `c_float` writes it (the shortest decimal that reads
 back to the same binary32 value), a comment's text only through `ascii_text` (ASCII, no comment
 delimiters).

@@ -3,7 +3,7 @@
 The safety monitor hands control here when the policy's output is non-finite or the state has left
 the policy's envelope. The job is to bring the vehicle back to the target and hold it there, from
 any attitude the policy could plausibly have left it in, without a model of its own beyond the
-nominal `VehicleParams`. NumPy and `quadpilot.core` only (see DESIGN.md, import direction).
+nominal `VehicleParams`. NumPy and `quadpilot.core` only (see docs/architecture.md, import direction).
 
 Structure, a cascade from the slow loop to the fast one, each stage saturated before the next:
 

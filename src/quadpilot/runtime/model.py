@@ -1,7 +1,7 @@
 """Reading a quad-export ONNX file and checking its contract before anything flies it.
 
-Everything in the file is untrusted: its graph and every metadata string (DESIGN.md, "Trust
-boundaries"). The rules this module enforces, in one place, before any backend sees the file:
+Everything in the file is untrusted: its graph and every metadata string (docs/architecture.md,
+"Trust boundaries"). The rules this module enforces, in one place, before any backend sees the file:
 
 - Every metadata value is validated where it is read, against what this runtime knows: the schema;
   the observation layout (found by name in `core.observation`, with the same fields); the action

@@ -2,7 +2,7 @@
 
 A checkpoint is a `torch.save` file holding tensors and JSON-able data only (dict, list, tuple, str,
 int, float, bool, None), so `torch.load(path, weights_only=True)` reads it and no pickle of ours is
-ever executed (DESIGN "Conventions"). Every algorithm writes the same layout (`trainer`'s docstring
+ever executed (docs/architecture.md "Conventions"). Every algorithm writes the same layout (`trainer`'s docstring
 lists the entries: schema, algo, its configuration, environment, model, optimizer, normaliser,
 counts, trainer, env and RNG state, extra) plus entries of its own (SAC: critics, temperature,
 replay count); a file without "algo" is PPO's, as every file before SAC wrote one.

@@ -1,5 +1,5 @@
 """The checkpoint format's checks: every value a checkpoint file holds is read through these
-(DESIGN "Trust boundaries") before it reaches a network, a trainer or an allocation.
+(docs/architecture.md "Trust boundaries") before it reaches a network, a trainer or an allocation.
 
 `checkpoint.check_content` (called by `load_checkpoint`) checks each entry's type and range with the
 functions below, and builds the configurations it describes; `check_fits` (called where the entries

@@ -47,7 +47,7 @@ settings matched to the PPO preset (`sb3_baseline`), or our SAC."""
 
 
 def field_docs(cls) -> dict[str, str]:
-    """The docstring under each field of a dataclass (DESIGN style 1: it becomes --help)."""
+    """The docstring under each field of a dataclass (docs/architecture.md style 1: it becomes --help)."""
     try:
         tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
     except (OSError, TypeError):
@@ -144,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--preset",
         choices=sorted(PRESETS),
-        help="PPO hyper-parameter preset (ppo, sb3): fast (batched PPO tuned here), seed001 (seed 001's recipe) "
+        help="PPO hyper-parameter preset (ppo, sb3): fast (batched PPO tuned here), seed001 (the ENPM 667 recipe) "
         "or sb3_defaults (Stable-Baselines3 PPO's defaults). Options given explicitly override it. Default: fast.",
     )
     p.add_argument(

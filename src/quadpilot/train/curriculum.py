@@ -1,4 +1,4 @@
-"""Waypoint curriculum (seed 000): targets start close to home and move out as the policy masters
+"""Waypoint curriculum (the course brief): targets start close to home and move out as the policy masters
 each distance, 0.5 → 1.0 → 2.0 m.
 
 Pure logic, no training in here: after each PPO update the trainer hands `observe` the success
@@ -27,7 +27,7 @@ class CurriculumConfig:
     """When the waypoint target radius grows. Derived values are properties of WaypointCurriculum."""
 
     radii: tuple[float, ...] = (0.5, 1.0, 2.0)
-    """m, target radius of each stage, in order (seed 000: 0.5, 1.0, 2.0)."""
+    """m, target radius of each stage, in order (the course brief: 0.5, 1.0, 2.0)."""
     threshold: float = 0.9
     """Success rate over the sliding window that passes a stage."""
     min_episodes: int | None = None

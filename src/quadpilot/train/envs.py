@@ -62,7 +62,7 @@ class EnvConfig:
     home: tuple[float, float, float] = HOME["hover"]
     """m, world ENU: hover target, waypoint start, circle centre."""
     episode_steps: int = 500
-    """Steps before truncation (500 × 0.01 s = 5 s, seed 000)."""
+    """Steps before truncation (500 × 0.01 s = 5 s, the course brief)."""
     dt: float = dynamics.DT
     """s, control period."""
     substeps: int = 1
@@ -90,9 +90,9 @@ class EnvConfig:
     target_radius: float = 0.5
     """m, waypoint: target uniform in a ball of this radius around home (the curriculum stage)."""
     circle_radius: float = CIRCLE_RADIUS
-    """m, circle radius (seed 001)."""
+    """m, circle radius (the ENPM 667 project)."""
     circle_speed: float = CIRCLE_SPEED
-    """m/s, speed along the circle, counter-clockwise seen from above (seed 001)."""
+    """m/s, speed along the circle, counter-clockwise seen from above (the ENPM 667 project)."""
     success_tolerance: float = SUCCESS_TOLERANCE_M
     """m, an episode succeeds if it ends uncrashed with mean position error over its last
     `success_window` seconds at most this, and holds its start heading (`core.mission.window_success`)."""

@@ -1,4 +1,4 @@
-"""Actor and critic networks (seed 000 step 3), written out so each piece can be read.
+"""Actor and critic networks (the course brief's step 3), written out so each piece can be read.
 
 Actor: MLP → Gaussian mean per action dimension, with a state-independent log-std parameter.
 Critic: MLP → scalar V(s). Separate networks (no shared trunk), so value-loss gradients never

@@ -12,7 +12,7 @@ Read against the paper:
   that loss with its gradient written out, the same gradient clip and Adam, on the same parameters
   and optimiser state; the rollout's forward passes too. torch's path stays the reference.
 
-Health metrics come back as a dict under fixed names (DESIGN style rule 5); the run loop (`run`)
+Health metrics come back as a dict under fixed names (docs/architecture.md style rule 5); the run loop (`run`)
 decides where they go. approx_kl uses the (r − 1) − log r estimator (Schulman, "Approximating KL
 Divergence", 2020), unbiased and never negative. What PPO shares with SAC (the episode log, the
 checkpoint layout, the files) is `trainer.Trainer`'s.
@@ -167,7 +167,7 @@ class PPOConfig:
 PRESETS: dict[str, dict] = {
     # Batched PPO tuned on this project's hover task (see docs/benchmarks.md).
     "fast": {},
-    # Seed 001's recipe as published: actor 32×32, critic 128×128, γ 0.99, lr 1e-4, 350-step
+    # The ENPM 667 project's recipe as published: actor 32×32, critic 128×128, γ 0.99, lr 1e-4, 350-step
     # rollouts, minibatch 64, 10 epochs; one actor as in its code.
     "seed001": {
         "num_envs": 1,

@@ -11,7 +11,7 @@ Read against the papers (equations of arXiv:1812.05905 unless said otherwise):
       y = r + γ (1 − terminated) (min_k Q_θ̄k(s', a') − α log π(a'|s')),  a' ~ π(·|s')       (eqs. 3, 5)
   with the minimum over the two target networks (the clipped double Q of Fujimoto et al. 2018,
   arXiv:1802.09477, which 1812.05905 §5 uses). Bootstrapping stops on termination only: a time-limit
-  truncation stores the true final observation as s' and bootstraps from it (DESIGN style 4).
+  truncation stores the true final observation as s' and bootstraps from it (docs/architecture.md style 4).
 - actor: J_π(φ) = E[α log π(ã|s) − min_k Q_θk(s, ã)],  ã = tanh(μ_φ(s) + σ_φ(s)·ε), ε ~ N(0, I)
   (eq. 7 with the reparameterisation a = f_φ(ε; s) of §4.2).
 - temperature: J(α) = E[−α log π(a|s) − α H̄] with target entropy H̄ = −|A| = −4       (eq. 18, §5)

@@ -6,7 +6,7 @@ iteration in `iterate` (one metrics.csv row: collect, then update) and names its
 entries in `own_state` / `load_own_state` / `own_optimizers`. The rest is here, once for every
 algorithm: the vector environment and its random generators, the episode log and its summary, the
 non-finite streak, and the training state in one layout, so that a checkpoint of any algorithm
-holds the same entries (DESIGN "Conventions": tensors and JSON-able data only):
+holds the same entries (docs/architecture.md "Conventions": tensors and JSON-able data only):
 
     schema, algo    "quadpilot.checkpoint/1"; "ppo" or "sac" (a file without "algo" is PPO's)
     <algo>_config   the algorithm's configuration (PPOConfig, SACConfig), to_json()

@@ -3,7 +3,7 @@
 NumPy only. A trace comes from quad-sitl's `EpisodeLog` (`FlightTrace.from_episode_log`), from an
 in-process evaluation (`FlightTrace.from_arrays`) or from a file written by `to_npz`.
 
-Frames and units are the project's (DESIGN.md): world ENU (z up), body FLU, ZYX Euler angles in
+Frames and units are the project's (docs/architecture.md): world ENU (z up), body FLU, ZYX Euler angles in
 rad, SI units; the state columns are `core.dynamics.STATE_NAMES`. Motor commands are ω/ω_max in
 [0, 1] in PX4's quad-X order (`core.dynamics.MOTOR_NAMES`).
 """
