@@ -30,7 +30,6 @@ import argparse
 import json
 import math
 import os
-import re
 import signal
 import socket
 import subprocess
@@ -44,7 +43,8 @@ import quadpilot.sitl_node as sitl_node
 from quadpilot.console import Parser, UsageError, atomic_write, check_output_path
 from quadpilot.console import int_in as _int_in
 
-SHIPPED_HOVER = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"
+# The shipped models are package data (`runtime.shipped`): in a source checkout this is models/.
+SHIPPED_HOVER = (Path(__file__).parent / "models").resolve() / "hover" / "policy.onnx"
 MAX_EPISODES = 100_000
 MAX_DURATION_S = 3600.0  # an hour of 100 Hz flight is 360 000 logged steps per episode
 # A flag value that starts with "-" and a digit is a value (--wind -0.9,0,0), not an unknown
@@ -117,7 +117,11 @@ def _fraction(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
-    p.add_argument("policy", nargs="?", type=Path, help=f"ONNX file from quad-export. Default: {SHIPPED_HOVER}")
+    p.add_argument(
+        "policy", nargs="?", type=Path, help="ONNX file from quad-export. Default: the shipped hover model (--model)"
+    )
+    p.add_argument("--model", metavar="NAME", help="Fly the shipped model NAME (--list-models). Default: hover")
+    p.add_argument("--list-models", action="store_true", help="List the shipped models, what each is for, and exit.")
     p.add_argument(
         "--episodes", type=_int_in(1, MAX_EPISODES), metavar="N", help="Default: 10 (--node-only, --start landed: 1)"
     )
@@ -311,6 +315,10 @@ def _bad_run(message: str) -> int:
     return 1
 
 
+def _warn(message: str) -> None:
+    print(f"quad-sitl: warning: {message}", file=sys.stderr)
+
+
 def _bad_file(message: str) -> int:
     print(f"quad-sitl: error: {message}", file=sys.stderr)
     return 1
@@ -340,6 +348,11 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_flag(str(e))
     except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
+    if args.list_models:
+        from quadpilot.runtime.shipped import listing
+
+        print("\n".join(listing()))
+        return 0
     # every flag is checked here, before anything starts: nothing below refuses a flag
     rest = _sim_args(args)
     if rest:  # the simulator's own flags (--mass-scale, --wind, --imu-noise, ...): checked here, passed on
@@ -362,7 +375,16 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_flag(why)
     if args.episodes is None:
         args.episodes = 1 if args.node_only or sitl_node.commanded(args) else 10
-    policy_path = args.policy if args.policy is not None else SHIPPED_HOVER
+    if args.policy is None:  # the shipped model --model names (hover by default), from the package's own data
+        from quadpilot.runtime.shipped import shipped_policy
+
+        try:
+            args.policy = shipped_policy(args.model)
+        except ValueError as e:
+            return _bad_flag(str(e))
+    elif args.model is not None:
+        return _bad_flag(f"give a policy file or --model, not both ({args.policy} and --model {args.model})")
+    policy_path = args.policy
     for path, what in ((policy_path, "an ONNX policy file from quad-export"), (args.key, "a signing key file")):
         if path is not None and (why := _check_input_file(path, what)) is not None:
             return _bad_flag(why)
@@ -418,10 +440,11 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory(prefix="quad-sitl-") as tmp:  # the policy's vehicle file, if it needs one
             if args.node_only:
                 return sitl_node.fly(args, policy, policy_path, key, _draw)
+            from quadpilot.firmware_sim.cli import policy_vehicle_args
             from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
 
             try:
-                rest = [*rest, *_vehicle_args(args, policy.info.vehicle, Path(tmp))]
+                rest = [*rest, *policy_vehicle_args(args.vehicle, policy.info.vehicle, Path(tmp), warn=_warn)]
             except ValueError as e:  # the policy's vehicle cannot be written as a vehicle file
                 return _bad_file(f"{policy_path}: {e}")
             try:  # the flags together with the policy's vehicle (e.g. a noise model it has not)
@@ -438,33 +461,6 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if old is not None:
             signal.signal(signal.SIGTERM, old)
-
-
-def _vehicle_args(args, policy_vehicle, tmp: Path) -> list[str]:
-    """The simulator's --vehicle: the policy's own vehicle unless --vehicle names another (then a
-    one-line warning on stderr when its parameters differ from the policy's). The policy's vehicle
-    is its preset's name when it is that preset exactly, else a vehicle file written into `tmp`."""
-    import dataclasses
-
-    from quadpilot.core.params import PRESETS
-    from quadpilot.core.vehicle_file import resolve_vehicle, vehicle_to_toml
-
-    if args.vehicle is not None:  # already passed on in `rest`, and checked
-        flown = resolve_vehicle(args.vehicle)
-        if dataclasses.replace(flown, name="") != dataclasses.replace(policy_vehicle, name=""):
-            print(
-                f"quad-sitl: warning: --vehicle {args.vehicle} ({flown.name}, {flown.mass:g} kg) differs from the "
-                f"vehicle the policy was trained on ({policy_vehicle.name}, {policy_vehicle.mass:g} kg)",
-                file=sys.stderr,
-            )
-        return []
-    if PRESETS.get(policy_vehicle.name) == policy_vehicle:
-        return [f"--vehicle={policy_vehicle.name}"]
-    # the name only labels the vehicle (and picks its sensor models): one a file can hold
-    name = re.sub(r"[^A-Za-z0-9_.-]", "_", policy_vehicle.name)[:64] or "policy_vehicle"
-    path = tmp / "policy_vehicle.toml"
-    path.write_text(vehicle_to_toml(dataclasses.replace(policy_vehicle, name=name)), encoding="utf-8")
-    return [f"--vehicle={path}"]
 
 
 def _in_main_thread() -> bool:
@@ -582,7 +578,7 @@ def _draw(args, logs, period: float) -> int:
         return 1
     try:
         if args.plot is not None:
-            plot_flight(traces, args.plot, title=f"quad-sitl: {args.policy or SHIPPED_HOVER}")
+            plot_flight(traces, args.plot, title=f"quad-sitl: {args.policy}")
             print(f"  plot                    {args.plot}")
         if args.video is not None:
             render_flight_video(traces[0], args.video)

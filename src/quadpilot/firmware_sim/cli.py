@@ -8,13 +8,22 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import re
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
 from quadpilot.console import Parser, UsageError, atomic_write, float_in
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
-from quadpilot.core.params import PRESETS
-from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError, is_vehicle_path, resolve_vehicle
+from quadpilot.core.params import PRESETS, VehicleParams
+from quadpilot.core.vehicle_file import (
+    UnknownVehicleError,
+    VehicleFileError,
+    is_vehicle_path,
+    resolve_vehicle,
+    vehicle_to_toml,
+)
 from quadpilot.link.spin import MAX_SPIN_US
 from quadpilot.link.transport import SigningError, SimulatorError, parse_address, read_key
 
@@ -28,6 +37,30 @@ def vehicle_label(cfg: SimConfig) -> str:
     if cfg.airframe is not None:
         return f"{cfg.airframe.name} ({cfg.airframe.mass:g} kg) from {cfg.airframe_source}"
     return cfg.vehicle
+
+
+def policy_vehicle_args(
+    requested: str | None, policy_vehicle: VehicleParams, tmp: Path, warn: Callable[[str], None]
+) -> list[str]:
+    """The simulator's --vehicle for flying a policy: the policy's own vehicle unless `requested`
+    (the user's --vehicle, already passed on and checked) names another; then `warn` gets one line
+    when its parameters differ from the policy's. The policy's vehicle is its preset's name when it
+    is that preset exactly, else a vehicle file written into `tmp`."""
+    if requested is not None:
+        flown = resolve_vehicle(requested)
+        if dataclasses.replace(flown, name="") != dataclasses.replace(policy_vehicle, name=""):
+            warn(
+                f"--vehicle {requested} ({flown.name}, {flown.mass:g} kg) differs from the vehicle the policy "
+                f"was trained on ({policy_vehicle.name}, {policy_vehicle.mass:g} kg)"
+            )
+        return []
+    if PRESETS.get(policy_vehicle.name) == policy_vehicle:
+        return [f"--vehicle={policy_vehicle.name}"]
+    # the name only labels the vehicle (and picks its sensor models): one a file can hold
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", policy_vehicle.name)[:64] or "policy_vehicle"
+    path = tmp / "policy_vehicle.toml"
+    path.write_text(vehicle_to_toml(dataclasses.replace(policy_vehicle, name=name)), encoding="utf-8")
+    return [f"--vehicle={path}"]
 
 
 def _wind(text: str) -> tuple[float, float, float]:
