@@ -159,3 +159,65 @@ def test_the_checker_notices_a_rename(tmp_path):
         "src/m.py::compute_gae (not defined in src/m.py)",
     ]
     assert missing({("src/gone.py", "f")}, tmp_path) == ["src/gone.py::f (no such file)"]
+
+
+def _ppo_defaults() -> dict[str, object]:
+    """PPOConfig's field defaults, read from the source with ast (the `fast` preset overrides none)."""
+    tree = ast.parse((ROOT / "src/quadpilot/train/ppo.py").read_text(encoding="utf-8"))
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "PPOConfig")
+    fields = {
+        s.target.id: ast.literal_eval(s.value)
+        for s in cls.body
+        if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name) and s.value is not None
+    }
+    presets = next(
+        n.value for n in tree.body if isinstance(n, ast.AnnAssign) and getattr(n.target, "id", "") == "PRESETS"
+    )
+    assert ast.literal_eval(presets)["fast"] == {}, "the fast preset overrides a default: read it here too"
+    return fields
+
+
+def _cell_matches(text: str, value: object) -> bool:
+    text = text.strip().replace("−", "-")
+    if isinstance(value, bool):
+        return text == ("on" if value else "off")
+    if value is None:
+        return text == "None"
+    if isinstance(value, (int, float)):
+        try:
+            return float(text.replace(",", "")) == float(value)
+        except ValueError:
+            return False
+    return str(value) in text  # a schedule's name ("linear to 0")
+
+
+def defaults_table_mismatches(doc: str, defaults: dict[str, object]) -> list[str]:
+    """Rows of section 6's table whose 'default' column is not the code's default."""
+    section = doc.split("## 6. The PPO update", 1)[1].split("Per minibatch", 1)[0]
+    wrong = []
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) != 4 or "PPOConfig." not in cells[1]:
+            continue
+        names = re.findall(r"PPOConfig\.(\w+)", cells[1])
+        values = [v.strip() for v in cells[2].split(",")] if len(names) > 1 else [cells[2]]
+        for name, text in zip(names, values, strict=True):
+            if not _cell_matches(text, defaults[name]):
+                wrong.append(f"{name}: the walkthrough says {text!r}, the code's default is {defaults[name]!r}")
+    k = re.search(r"K = `epochs` = (\d+) passes", section)
+    if k is None or int(k.group(1)) != defaults["epochs"]:
+        wrong.append(f"the prose's K is {k and k.group(1)}, epochs is {defaults['epochs']}")
+    return wrong
+
+
+def test_the_walkthrough_takes_its_ppo_defaults_from_the_code():
+    assert not defaults_table_mismatches(DOC.read_text(encoding="utf-8"), _ppo_defaults())
+
+
+def test_a_changed_default_is_caught():
+    doc, defaults = DOC.read_text(encoding="utf-8"), _ppo_defaults()
+    assert defaults_table_mismatches(doc, {**defaults, "epochs": 10}) == [
+        "epochs: the walkthrough says '8', the code's default is 10",
+        "the prose's K is 8, epochs is 10",
+    ]
+    assert len(defaults_table_mismatches(doc, {**defaults, "lr": 3e-4, "normalize_obs": True})) == 2
