@@ -183,3 +183,29 @@ def test_outside_citation_check_finds_planted_ones(tmp_path):
     (tmp_path / "docs" / "a.md").write_text("as ../shared/DESIGN.md says\nfine\nSeed 001's table\n")
     (tmp_path / "README.md").write_text("see shared/seeds/000_x.txt\n")
     assert [f.split(":")[1] for f in outside_citations(tmp_path)] == ["1", "1", "3"]
+
+
+def constants_defined_twice(root: Path) -> list[str]:
+    """Module-level constants (UPPER_CASE = literal) defined with the same name and value in more than
+    one module: the second is a copy that can drift from the first."""
+    seen: dict[tuple[str, object], list[str]] = {}
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+            if not isinstance(node, (ast.Assign, ast.AnnAssign)) or not isinstance(node.value, ast.Constant):
+                continue
+            for t in targets:
+                if isinstance(t, ast.Name) and t.id.isupper():
+                    seen.setdefault((t.id, node.value.value), []).append(str(path.relative_to(root)))
+    return [f"{name} = {value!r} in {', '.join(where)}" for (name, value), where in seen.items() if len(where) > 1]
+
+
+def test_each_constant_is_defined_once():
+    twice = constants_defined_twice(SRC)
+    assert not twice, "defined more than once (import the first instead):\n" + "\n".join(twice)
+
+
+def test_a_copied_constant_is_found(tmp_path):
+    (tmp_path / "a.py").write_text("NUM_MOTORS = 4\nDT = 0.01\n")
+    (tmp_path / "b.py").write_text("NUM_MOTORS = 4\nDT = 0.02\n")
+    assert constants_defined_twice(tmp_path) == ["NUM_MOTORS = 4 in a.py, b.py"]

@@ -42,6 +42,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
+from quadpilot.core.params import NUM_MOTORS
 from quadpilot.core.state import PITCH, POS, RATES, ROLL, VEL, YAW, Z
 
 # the frames (`link.frames`); the `X as X` ones are not used here, only re-exported: the rest of
@@ -69,7 +70,6 @@ from .saturation import saturating_args as _saturating_args
 G_MG = 9.80665 / 1000.0  # m/s² per milli-g (MAVLink's mG uses standard gravity)
 ARMED = 128  # MAV_MODE_FLAG_SAFETY_ARMED, in HIL_ACTUATOR_CONTROLS.mode
 LOCKSTEP = 1  # HIL_ACTUATOR_CONTROLS_FLAGS_LOCKSTEP, in HIL_ACTUATOR_CONTROLS.flags
-NUM_MOTORS = 4
 MOTOR_MAP = (0, 1, 2, 3)
 """controls[i] on the wire drives our model's rotor MOTOR_MAP[i] (identity: both are PX4 quad-X)."""
 MAX_BODY_RATE = 70.0

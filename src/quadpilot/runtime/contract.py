@@ -13,9 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from quadpilot.core.observation import ObsLayout
+from quadpilot.core.params import NUM_MOTORS as NUM_MOTORS  # the schema's motor count is the project's one
 from quadpilot.core.params import VehicleParams
-
-NUM_MOTORS = 4
 
 
 class ModelContractError(ValueError):

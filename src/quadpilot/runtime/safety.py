@@ -36,9 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .policy import Policy
+from quadpilot.core.params import NUM_MOTORS
 
-NUM_MOTORS = 4
+from .policy import Policy
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from quadpilot.runtime.model import MAX_LAYERS  # a checkpoint is held to the depth a model file may have
+
 SCHEMA = "quadpilot.checkpoint/1"
 BIT_GENERATORS = ("PCG64", "PCG64DXSM", "Philox", "SFC64", "MT19937")
 
@@ -99,7 +101,6 @@ MAX_FILE_BYTES = 1 << 30
 """A checkpoint of the default network is ~0.5 MB (policy.pt ~50 kB); refuse to unpickle a disk image."""
 MAX_WIDTH = 4096
 """Widest hidden or LSTM layer a checkpoint may describe (the shipped ones are 64)."""
-MAX_LAYERS = 16
 MAX_OBS_HISTORY = 64
 MAX_BATCH = 1 << 24
 """Most transitions a configuration may hold in memory at once (num_envs × rollout_steps for

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-ACT_DIM = 4
+from quadpilot.core.params import NUM_MOTORS as ACT_DIM  # the action is one command a rotor
 
 
 def history_dim(obs_dim: int, k: int) -> int:

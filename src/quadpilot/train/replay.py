@@ -18,10 +18,11 @@ import numpy as np
 import torch
 
 from quadpilot.console import atomic_write
+from quadpilot.core.params import NUM_MOTORS
 
 from .checks import CheckpointError, load_weights_only
 
-ACT_DIM = 4
+ACT_DIM = NUM_MOTORS  # the action is one command a rotor
 REPLAY_DIR = "replay"
 REPLAY_SCHEMA = "quadpilot.replay/1"
 

@@ -60,9 +60,8 @@ from . import runlog, trainer
 from .checks import CheckpointError, check_count, check_tensor, check_weights, short
 from .envs import EnvConfig, QuadVectorEnv
 from .networks import ACTIVATIONS, mlp
-from .replay import REPLAY_DIR, ReplayBuffer, load_replay, prune_replay, save_replay_chunk
+from .replay import ACT_DIM, REPLAY_DIR, ReplayBuffer, load_replay, prune_replay, save_replay_chunk
 
-ACT_DIM = 4
 LOG2 = math.log(2.0)
 HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
