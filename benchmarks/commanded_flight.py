@@ -124,7 +124,12 @@ def trace_path(json_path: Path) -> Path:
 COMMAND_PHASES = {22: "take-off", 192: "goto", 21: "land", 20: "return", 300: "mission item 1"}
 MODE_PHASES = {"Takeoff": "take-off", "Mission": "mission item 1", "Land": "land", "Return": "return", "Hold": "hold"}
 ARM_DISARM, SET_MODE = 400, 176
-NAV_ITEMS = {16, 20, 21, 22}  # NAV_WAYPOINT, RETURN_TO_LAUNCH, LAND, TAKEOFF: the items runtime/missions.py flies
+NAV_ITEMS = {
+    16,
+    20,
+    21,
+    22,
+}  # NAV_WAYPOINT, RETURN_TO_LAUNCH, LAND, TAKEOFF: the items autopilot/mission_protocol.py flies
 
 
 def trace_from_tlog(path: Path) -> tuple[list[list], list[list]]:
@@ -132,9 +137,9 @@ def trace_from_tlog(path: Path) -> tuple[list[list], list[list]]:
     change of phase). See the module docstring for where each value comes from."""
     from pymavlink import mavutil
 
+    from quadpilot.autopilot.commands import MODE_NAMES
     from quadpilot.link.frames import Home
     from quadpilot.link.wire import state_from_hil_state_quaternion
-    from quadpilot.runtime.commands import MODE_NAMES
 
     home = Home()  # the simulator's home, as in tests/sitl/mavsdk_gcs.py
     names = {(int(main), int(sub)): name for (main, sub), name in MODE_NAMES.items()}

@@ -46,11 +46,11 @@ import numpy as np
 import pytest
 
 from baseline import BASELINE_COMMIT, REPO, BaselineUnavailable, baseline_src
+from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.core import dynamics
 from quadpilot.core.observation import build_observation
 from quadpilot.core.params import ParamBatch, get_preset
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import SHIPPED_HOVER, _start_simulator
 
 LOCKSTEP_S = 20.0
@@ -100,7 +100,7 @@ FLYER = r"""
 import json, sys, time
 import numpy as np
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import Node, NodeConfig
+from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.sitl import _start_simulator
 
 policy, backend, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])

@@ -1,6 +1,6 @@
 """The tables of docs/ground_station.md, printed from the vehicle's own data: the commands it answers
-(runtime.commands.CommandHandlers._COMMANDS), the flight modes it takes (runtime.commands.MODE_NAMES)
-and its parameters (runtime.params.PARAMS).
+(autopilot.commands.CommandHandlers._COMMANDS), the flight modes it takes (autopilot.commands.MODE_NAMES)
+and its parameters (autopilot.param_protocol.PARAMS).
 
     .venv/bin/python docs/commander_tables.py commands
     .venv/bin/python docs/commander_tables.py modes
@@ -19,7 +19,8 @@ import sys
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from quadpilot.runtime import commands, params
+from quadpilot.autopilot import commands
+from quadpilot.autopilot import param_protocol as params
 
 COMMANDS = {
     "MAV_CMD_COMPONENT_ARM_DISARM": "param1 1 arms (on the ground, with a position), 0 disarms (landed only, "

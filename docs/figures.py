@@ -418,7 +418,7 @@ ALLOWED: tuple[tuple[str, str], ...] = (
         r"within\s+10°\s+of|same\s+2\s+s|over\s+its\s+last\s+2\s+s|last\s+2\s+s|\s+2\s+s:\s+error|(?:larger\s+than|most|runs)\s+25°|"
         r"within\s+30°\s+of|a\s+90°\s+and\s+a\s+180°\s+turn",
         "the yaw rule (core.mission: heading within 10° over the last 2 s), the training's commanded-heading offset "
-        "(30°, EnvConfig.heading_offset_deg), the node's heading reach (25°, runtime.node.HEADING_REACH_RAD) and "
+        "(30°, EnvConfig.heading_offset_deg), the node's heading reach (25°, autopilot.node.HEADING_REACH_RAD) and "
         "the turns a test commands",
     ),
     (

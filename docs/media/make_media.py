@@ -5,7 +5,7 @@
   hover.gif     the shipped hover policy (models/hover/policy.onnx) flown through quad-sitl
   circle.gif    the shipped circle policy, two laps, flown through quad-sitl
   montage.gif   one start state flown by the untrained, an early and the final policy of a hover
-                run trained with --snapshot-every (python -m quadpilot.studies.montage)
+                run trained with --snapshot-every (python -m quadpilot.studies.learning_montage)
   curves.png    that run's learning curves, with the montage's snapshots marked
 
 Every step is an ordinary command of the project, printed before it runs; the training run goes to
@@ -54,7 +54,7 @@ def montage(run_dir: Path, out: Path) -> None:
         [
             sys.executable,
             "-m",
-            "quadpilot.studies.montage",
+            "quadpilot.studies.learning_montage",
             run_dir,
             "-o",
             out,
@@ -72,7 +72,7 @@ def curves(run_dir: Path, out: Path) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from quadpilot.studies.montage import nearest_snapshots, parse_steps
+    from quadpilot.studies.learning_montage import nearest_snapshots, parse_steps
     from quadpilot.train.checkpoint import list_snapshots
     from quadpilot.train.runlog import read_metrics
 

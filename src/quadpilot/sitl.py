@@ -1,7 +1,7 @@
 """quad-sitl: fly an exported policy against a software-in-the-loop quadrotor over MAVLink.
 
 Starts the simulator (`quadpilot.firmware_sim`) as a separate process listening on loopback TCP,
-runs the autopilot node (`quadpilot.runtime.node`) in this process for each episode, and prints
+runs the autopilot node (`quadpilot.autopilot.node`) in this process for each episode, and prints
 a summary: success rate, position errors, crashes, steps/s, control-loop latency, failsafes and
 dropped packets. With no policy it flies the shipped hover model.
 
@@ -12,7 +12,7 @@ any simulator that speaks PX4's Simulator MAVLink API and listens there (ours, R
 PX4Multirotor, ...): see `quadpilot.sitl_node`.
 
 `--start landed --realtime [--gcs udp:HOST:PORT]`: the vehicle starts on the ground, disarmed, and the
-node answers the ground station there as a PX4 vehicle (`runtime.commander`); one episode, which ends
+node answers the ground station there as a PX4 vehicle (`autopilot.commander`); one episode, which ends
 after the vehicle has flown, landed and been disarmed (`--duration` caps it: 600 s by default).
 
 The simulator flies the policy's own vehicle (the parameter set in its ONNX metadata, trained with
@@ -472,9 +472,9 @@ def _in_main_thread() -> bool:
 def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes | None) -> int:
     """Start the simulator, fly, summarise. The simulator is stopped on every way out of here (return,
     exception, Ctrl-C, SIGTERM via `_Terminated`)."""
+    from quadpilot.autopilot.node import Node, NodeConfig, NodeError
     from quadpilot.core.mission import default_duration_s, plan_episode
     from quadpilot.runtime import SafetyMonitor
-    from quadpilot.runtime.node import Node, NodeConfig, NodeError
 
     commanded = sitl_node.commanded(args)
     if commanded and args.lockstep:

@@ -9,7 +9,7 @@ simulator (`summarise`, `print_summary`).
 - Home (the local frame's origin) is the first valid position the simulator reports, unless
   `--home` gives it; `--target` is metres East, North, Up from home, by default the first valid
   position (hold where the flight starts).
-- The node's own rules (`runtime.node`): HEARTBEAT first, then at 1 Hz; one HIL_ACTUATOR_CONTROLS
+- The node's own rules (`autopilot.node`): HEARTBEAT first, then at 1 Hz; one HIL_ACTUATOR_CONTROLS
   per simulator step; the simulator's MAVLink version; body rates from HIL_SENSOR; the policy at
   its trained rate on simulated time, its command held in between.
 - It flies `--duration` seconds of simulated time and prints one line: steps, the steps that fell
@@ -249,9 +249,9 @@ def write_trace(log, path: Path) -> None:
 def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
     """One flight against `args.connect`; prints the summary line, writes --json/--trace/--tlog and
     the pictures (`draw(args, logs, period)`); the exit code."""
+    from quadpilot.autopilot.node import Node, NodeConfig, NodeError
     from quadpilot.core.mission import default_duration_s
     from quadpilot.runtime import SafetyMonitor
-    from quadpilot.runtime.node import Node, NodeConfig, NodeError
 
     period = policy.info.control_period_s
     monitor = SafetyMonitor(policy)
@@ -318,7 +318,7 @@ def _mean_of(eps: list[dict], key: str, reduce=np.mean) -> float:
 
 
 def summarise(logs, period: float, task: str = "hover") -> dict:
-    from quadpilot.runtime.flight_log import episode_summary
+    from quadpilot.autopilot.flight_log import episode_summary
 
     eps = [episode_summary(log, period, task) for log in logs]
     lat = np.concatenate([np.asarray(log.latency_s) for log in logs]) * 1e6 if logs else np.zeros(0)

@@ -57,8 +57,8 @@ ALLOWED = {
     ("export/onnx_export.py", "starts[0]"): "time 0 of the (steps, sequences) episode-start flags",
     ("export/onnx_export.py", "state[0]"): "h of a recurrent policy's (h, c) state",
     ("export/onnx_export.py", "state[1]"): "c of a recurrent policy's (h, c) state",
-    ("studies/montage.py", "s[0]"): "the step count of a (step, path) snapshot",
-    ("studies/montage.py", "batch.state[0]"): "row 0 (the one drone) of an (N, 12) batch",
+    ("studies/learning_montage.py", "s[0]"): "the step count of a (step, path) snapshot",
+    ("studies/learning_montage.py", "batch.state[0]"): "row 0 (the one drone) of an (N, 12) batch",
     ("studies/robustness.py", "states[0]"): "time 0 of a (T + 1, N, 12) history",
 }
 

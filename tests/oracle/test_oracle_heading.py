@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from quadpilot.autopilot.node import HEADING_REACH_RAD, heading_within_reach
 from quadpilot.core.observation import HOVER_LAYOUT, HOVER_LAYOUT_V1, TRACK_LAYOUT, build_observation
 from quadpilot.core.reward import RewardConfig, hover_reward
-from quadpilot.runtime.node import HEADING_REACH_RAD, heading_within_reach
 
 
 def _state(yaw, roll=0.0, pitch=0.0):

@@ -47,7 +47,7 @@ ENTRY = {
     "quad-export": "quadpilot.export.cli:main",
     "quad-demo": "quadpilot.demo:main",
     "quad-compare": "quadpilot.studies.compare:main",
-    "montage": "quadpilot.studies.montage:main",
+    "montage": "quadpilot.studies.learning_montage:main",
 }
 # what the commands import lazily (torch._dynamo: on the first torch.optim.Adam), imported once in
 # the driver instead of in every child
@@ -56,7 +56,7 @@ PRELOAD = [
     *("torch", "torch._dynamo", "onnx", "onnxruntime", "gymnasium", "rich.progress", "matplotlib.backends.backend_agg"),
     *("quadpilot.train." + m for m in ("ppo", "checkpoint", "envs", "curriculum", "evaluate", "runlog", "sac")),
     *("quadpilot.export.onnx_export", "quadpilot.export.c_export", "quadpilot.firmware_sim.sim", "quadpilot.viz"),
-    *("quadpilot.runtime", "quadpilot.runtime.node", "quadpilot.link.tlog", "quadpilot.core.mission"),
+    *("quadpilot.runtime", "quadpilot.autopilot.node", "quadpilot.link.tlog", "quadpilot.core.mission"),
 ]
 
 _DRIVER = r"""
@@ -657,7 +657,7 @@ def test_negative_numbers_are_flag_values(driven):
 def test_console_scripts_answer_a_bad_flag_cold():
     """Each console script from the virtual environment, cold, with an unknown flag."""
     commands = [[str(BIN / name), "--no-such-flag"] for name in ENTRY if name != "montage"]
-    for study in ("montage", "robustness", "sac_compare"):
+    for study in ("learning_montage", "robustness", "sac_compare"):
         commands.append([sys.executable, "-X", "dev", "-m", f"quadpilot.studies.{study}", "--no-such-flag"])
     with ThreadPoolExecutor(3) as pool:
         done = list(pool.map(lambda cmd: subprocess.run(cmd, capture_output=True, text=True, timeout=120), commands))

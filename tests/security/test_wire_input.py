@@ -24,13 +24,13 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink2
 
+from quadpilot.autopilot.flight_log import episode_summary
+from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.core.observation import HOVER_LAYOUT, build_observation
 from quadpilot.firmware_sim import sensors
 from quadpilot.firmware_sim.sim import TIME_ORIGIN_US, Plant, SimConfig, Simulator
 from quadpilot.link import transport, wire
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.flight_log import episode_summary
-from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import SHIPPED_HOVER
 
 HOME = wire.Home()

@@ -5,7 +5,7 @@ lockstep), 3 s of simulated time (300 steps) from a fixed seed: once plain, once
 and disturbance path on (IMU noise, the estimator's ODOMETRY, wind, gusts). Pinned per flight:
 
 - `flight`: the node's log (ground truth per step, targets, motor commands) and its judged
-  summary (`runtime.node.episode_summary`: success, errors, heading);
+  summary (`autopilot.node.episode_summary`: success, errors, heading);
 - `from_simulator`: every frame the simulator sent, byte for byte (HIL_GPS, HIL_STATE_QUATERNION,
   ODOMETRY, HIL_SENSOR, sequence numbers and CRCs included);
 - `from_node`: every HIL_ACTUATOR_CONTROLS the node sent, header (sequence number left out: a
@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from quadpilot.autopilot.flight_log import episode_summary
+from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.flight_log import episode_summary
-from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import _start_simulator
 
 POLICY = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"

@@ -9,10 +9,10 @@ import threading
 
 import pytest
 
+from quadpilot.autopilot.node import NODE_SYSTEM_ID, Node, NodeConfig
 from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.link import spin, transport
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import NODE_SYSTEM_ID, Node, NodeConfig
 from quadpilot.sitl import SHIPPED_HOVER
 
 

@@ -37,8 +37,8 @@ import pytest
 from mavsdk_gcs import HOME, free_udp_port, policy_copy, start_vehicle, stop_vehicle
 from pymavlink import mavutil
 
+from quadpilot.autopilot import param_protocol as params
 from quadpilot.link.frames import geodetic_to_local
-from quadpilot.runtime import params
 
 pytestmark = pytest.mark.sitl
 M = mavutil.mavlink

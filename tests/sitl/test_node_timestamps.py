@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
+from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.link import transport, wire
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import SHIPPED_HOVER
 
 pytestmark = pytest.mark.sitl

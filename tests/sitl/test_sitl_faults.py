@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from quadpilot.autopilot.flight_log import episode_summary
+from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.flight_log import episode_summary
-from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import SHIPPED_HOVER, _start_simulator, main
 
 pytestmark = pytest.mark.sitl

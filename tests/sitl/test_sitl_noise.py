@@ -7,10 +7,10 @@ import threading
 import numpy as np
 import pytest
 
+from quadpilot.autopilot.node import Node, NodeConfig, heading_within_reach
 from quadpilot.core.observation import build_observation
 from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.runtime.node import Node, NodeConfig, heading_within_reach
 from quadpilot.sitl import SHIPPED_HOVER
 
 pytestmark = pytest.mark.sitl

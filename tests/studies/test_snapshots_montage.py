@@ -1,5 +1,5 @@
 """Policy snapshots during training (quad-train --snapshot-every) and the learning montage drawn
-from them (python -m quadpilot.studies.montage), on tiny budgets."""
+from them (python -m quadpilot.studies.learning_montage), on tiny budgets."""
 
 import json
 import math
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from quadpilot.studies.montage import flight_config, fly, pick_snapshots, steps_text
-from quadpilot.studies.montage import main as montage
+from quadpilot.studies.learning_montage import flight_config, fly, pick_snapshots, steps_text
+from quadpilot.studies.learning_montage import main as montage
 from quadpilot.train.checkpoint import (
     SNAPSHOTS,
     list_snapshots,

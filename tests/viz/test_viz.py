@@ -151,7 +151,7 @@ def test_npz_rejects_other_files(tmp_path):
 
 
 def test_from_episode_log_places_the_failsafe_at_the_last_step():
-    class Log:  # the fields of runtime.node.EpisodeLog that a trace reads
+    class Log:  # the fields of autopilot.node.EpisodeLog that a trace reads
         t = [1.0, 1.01, 1.02]
         states = [np.zeros(12)] * 3
         commands = [np.full(4, 0.5)] * 3

@@ -44,7 +44,7 @@ from .spin import SPIN_BACKOFF_MAX
 
 SIM_SYSTEM_ID = 200
 """MAVLink system id of the simulator's messages: a system of its own, not the autopilot's (system 1,
-`runtime.node.NODE_SYSTEM_ID`), so a .tlog or a router tells the two apart; 200 stays clear of the
+`autopilot.node.NODE_SYSTEM_ID`), so a .tlog or a router tells the two apart; 200 stays clear of the
 vehicle numbers (1, 2, ...) and of a ground station's 255."""
 SIM_COMPONENT_ID = 200
 """MAVLink component id of the simulator's messages: MAV_COMP_ID_IMU (200), the component PX4's

@@ -9,7 +9,7 @@ Writes into the run directory (default runs/<task>-seed<S>; runs/<task>-sac-seed
   eval.json           deterministic evaluation of the final policy
   curves.png          episode return, length, success rate (and curriculum stage) against steps
   snapshots/          with --snapshot-every N: policy-<steps>.pt, the deployable policy at 0 steps,
-                      every N updates and at the end (python -m quadpilot.studies.montage draws them)
+                      every N updates and at the end (python -m quadpilot.studies.learning_montage draws them)
 
 Resume an interrupted or finished run with the same command plus --resume; a larger --total-steps
 extends a finished run. A run holds its directory's lock (.lock) while it writes there: a second
@@ -197,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="Keep the policy every N updates (and at 0 steps and at the end) as snapshots/policy-<steps>.pt "
         "(not --algo sb3), "
         "a small deployable file like policy.pt (~50 kB for PPO's default network), for "
-        "python -m quadpilot.studies.montage. 0: none. Default: 0.",
+        "python -m quadpilot.studies.learning_montage. 0: none. Default: 0.",
     )
     p.add_argument(
         "--set",

@@ -1,7 +1,7 @@
 """`render_montage`: several flights side by side in one animation, on one clock.
 
 Made for a "learning montage" (the same start state flown by the early, middle and final policy
-snapshots of a training run: `python -m quadpilot.studies.montage`), but any flights will do. Each
+snapshots of a training run: `python -m quadpilot.studies.learning_montage`), but any flights will do. Each
 panel is the video module's drawing (`video._Scene`, layout "below"): the 3-D view with the
 quadrotor, its trail and the target, and under it the position error over the whole flight with a
 cursor. A title strip on top of each panel holds its label (e.g. training steps and error).

@@ -8,8 +8,8 @@ import pytest
 from commander_gcs import Gcs, ack, of_type, texts
 from pymavlink.dialects.v20 import common as M
 
-from quadpilot.runtime.commander import Commander, CommanderConfig
-from quadpilot.runtime.params import INT32, PARAMS, REAL32, ParamTable, decode, encode
+from quadpilot.autopilot.commander import Commander, CommanderConfig
+from quadpilot.autopilot.param_protocol import INT32, PARAMS, REAL32, ParamTable, decode, encode
 
 REQUIRED = (
     "MIS_TAKEOFF_ALT",

@@ -49,12 +49,12 @@ the fallback, as for any observation it cannot trust. A dropped state does not r
 link-loss timer, so a stream of them ends in the same failsafe as silence ("no valid state").
 
 Telemetry for a ground station (`gcs`, UDP 127.0.0.1:14550 by default, where QGroundControl and
-MAVProxy listen; `runtime.ground_station`): HEARTBEAT and SYS_STATUS at 1 Hz, ATTITUDE and
+MAVProxy listen; `autopilot.ground_station`): HEARTBEAT and SYS_STATUS at 1 Hz, ATTITUDE and
 LOCAL_POSITION_NED at `telemetry_hz`, GLOBAL_POSITION_INT at 5 Hz (simulated time), STATUSTEXT on
 failsafe and fallback. Telemetry is best effort: nobody listening costs nothing and stops nothing.
 
 Commanded (`NodeConfig.command`): the same socket also takes the ground station's commands. Every
-step, what it sent goes to a `runtime.commander.Commander` (at the step's simulated time) and the
+step, what it sent goes to a `autopilot.commander.Commander` (at the step's simulated time) and the
 answers go back at once; every policy tick the commander steps on the state the policy flies on and
 its setpoint is the policy's target (with its velocity for a track-layout policy). While the
 commander is disarmed, or idle on the ground, the node sends zero commands with its armed flag and
@@ -79,12 +79,12 @@ from quadpilot.core.dynamics import NUM_MOTORS
 from quadpilot.core.state import POS, YAW
 from quadpilot.link import spin, transport, wire
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, check_spin
+from quadpilot.runtime.observation_one import observe
+from quadpilot.runtime.safety import SafetyMonitor
 
 from .commander import Commander
 from .flight_log import EpisodeLog
 from .ground_station import NODE_COMPONENT_ID, NODE_SYSTEM_ID, GroundStation, commander_for, commander_summary
-from .observation_one import observe
-from .safety import SafetyMonitor
 from .setpoint import collective_thrust
 
 START_MODES = ("air", "landed")
@@ -150,7 +150,7 @@ class NodeConfig:
     """Answer in the MAVLink version the simulator speaks (`transport.Link.speak_as_peer`); False,
     or a signing key: MAVLink 2 only."""
     command: bool = False
-    """Answer the ground station at `gcs` as a PX4 vehicle (`runtime.commander`): the policy flies to
+    """Answer the ground station at `gcs` as a PX4 vehicle (`autopilot.commander`): the policy flies to
     the commander's setpoint (`target` and `targets` are not used), the motors are off while it is
     disarmed or idle, its telemetry streams replace the GroundStation's own, and the flight ends
     DISARMED_LINGER_S after the vehicle has flown and been disarmed (`duration_s` is the cap)."""

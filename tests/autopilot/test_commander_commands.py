@@ -13,8 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as M
 
+from quadpilot.autopilot.commander import Commander
 from quadpilot.link.frames import local_to_geodetic
-from quadpilot.runtime.commander import Commander
 
 ARM = M.MAV_CMD_COMPONENT_ARM_DISARM
 TAKEOFF = M.MAV_CMD_NAV_TAKEOFF

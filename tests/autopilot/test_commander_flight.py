@@ -10,8 +10,8 @@ import pytest
 from commander_gcs import HOME, Gcs, ack, mission_item, of_type, texts, upload
 from pymavlink.dialects.v20 import common as M
 
+from quadpilot.autopilot.commander import BadVehicleState, Commander
 from quadpilot.link.frames import geodetic_to_local
-from quadpilot.runtime.commander import BadVehicleState, Commander
 
 WP = M.MAV_CMD_NAV_WAYPOINT
 

@@ -48,7 +48,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.core.state import POS, RATES, STATE_DIM, VEL, YAW, Z
 from quadpilot.link.frames import Home
 
-from . import missions, navigator, streams
+from . import mission_protocol, navigator, streams
 from .commands import (
     ACCEPTED,
     DENIED,
@@ -63,7 +63,7 @@ from .commands import (
     enu_yaw,
 )
 from .navigator import Navigator
-from .params import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable
+from .param_protocol import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable
 from .setpoint import LandDetector, LandLimits, Mover
 
 M = mavlink2
@@ -122,7 +122,7 @@ class Commander(CommandHandlers):
         self.cfg = cfg = cfg or CommanderConfig()
         self.mav = M.MAVLink(None, srcSystem=cfg.system_id, srcComponent=cfg.component_id)
         self.params = ParamTable(self.mav, cfg.params)
-        self.missions = missions.MissionTransfer(self.mav)
+        self.missions = mission_protocol.MissionTransfer(self.mav)
         self.streams = streams.Streams()
         self.mover = Mover(cfg.lead_m)
         self.nav = Navigator(self.mover, self.params, cfg.arrival_dwell_s)
@@ -346,7 +346,7 @@ class Commander(CommandHandlers):
         return ACCEPTED, None
 
     def _item_started(self, item) -> None:
-        if item.command == missions.NAV_WAYPOINT and math.isfinite(item.param4):
+        if item.command == mission_protocol.NAV_WAYPOINT and math.isfinite(item.param4):
             self.yaw = enu_yaw(math.radians(item.param4))
 
     def _leave_mission(self) -> None:

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from quadpilot.runtime.navigator import rtl_altitude
-from quadpilot.runtime.params import PARAMS
-from quadpilot.runtime.setpoint import LandDetector, LandLimits, Mover, collective_thrust, land_speed
+from quadpilot.autopilot.navigator import rtl_altitude
+from quadpilot.autopilot.param_protocol import PARAMS
+from quadpilot.autopilot.setpoint import LandDetector, LandLimits, Mover, collective_thrust, land_speed
 
 DT = 0.01
 DEFAULTS = {p.name: p.default for p in PARAMS}

@@ -14,8 +14,8 @@ import math
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from quadpilot.autopilot.commander import Commander, CommanderConfig
 from quadpilot.link.frames import Home, local_to_geodetic
-from quadpilot.runtime.commander import Commander, CommanderConfig
 
 M = mavlink2
 GCS_SYSTEM, GCS_COMPONENT = 255, 190  # MAVSDK's and QGroundControl's ground-station ids

@@ -13,7 +13,7 @@ from collections import Counter
 from commander_gcs import HOME, HOVER_THRUST, PointMass
 from pymavlink import mavutil
 
-from quadpilot.runtime.commander import Commander, CommanderConfig
+from quadpilot.autopilot.commander import Commander, CommanderConfig
 
 
 class UdpVehicle(threading.Thread):

@@ -1,7 +1,7 @@
 """What the commander's owner (the node) may tell it outside the ground station's protocol: the vehicle
 started in the air (`arm_in_air`, before any step, so that the first heartbeat already says armed),
 and its own failsafe cut the motors (`motors_cut`: disarmed, CRITICAL, said with a STATUSTEXT); and the
-ground-station link that hands it messages (`runtime.ground_station`) survives a defect in it."""
+ground-station link that hands it messages (`autopilot.ground_station`) survives a defect in it."""
 
 import time
 
@@ -11,9 +11,9 @@ from commander_gcs import Gcs, of_type, texts
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
+from quadpilot.autopilot.commander import BadVehicleState, Commander
+from quadpilot.autopilot.ground_station import GroundStation
 from quadpilot.link.frames import Home
-from quadpilot.runtime.commander import BadVehicleState, Commander
-from quadpilot.runtime.ground_station import GroundStation
 
 ARMED = M.MAV_MODE_FLAG_SAFETY_ARMED
 

@@ -1,4 +1,4 @@
-"""Gimbal, mount and camera mission items on a vehicle with neither (runtime.missions.PAYLOAD_COMMANDS):
+"""Gimbal, mount and camera mission items on a vehicle with neither (autopilot.mission_protocol.PAYLOAD_COMMANDS):
 accepted in an upload and downloaded as sent, reported current and reached in their order as PX4
 reports its instantly completed "do" items, flown as nothing (the vehicle goes straight from
 waypoint to waypoint), while items that would move or turn the vehicle stay refused. The missions
@@ -13,7 +13,7 @@ import pytest
 from commander_gcs import Gcs, mission_item, of_type, upload
 from pymavlink.dialects.v20 import common as M
 
-from quadpilot.runtime import missions
+from quadpilot.autopilot import mission_protocol as missions
 
 WP, SPEED = M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_DO_CHANGE_SPEED
 CONFIGURE, PITCHYAW = M.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, M.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW

@@ -1,5 +1,5 @@
 """What one flight of the node recorded (`EpisodeLog`), and its judgement (`episode_summary`):
-the record `runtime.node.Node.fly` fills step by step, and the one success rule applied to it."""
+the record `autopilot.node.Node.fly` fills step by step, and the one success rule applied to it."""
 
 from __future__ import annotations
 

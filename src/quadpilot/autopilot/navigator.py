@@ -25,7 +25,7 @@ import numpy as np
 
 from quadpilot.link.frames import Home
 
-from . import missions
+from . import mission_protocol
 from .setpoint import Mover, land_speed
 
 LAND_DEPTH_M = 1000.0
@@ -223,42 +223,44 @@ def rtl_legs(ref, params, tag="rtl") -> list[Leg]:
     return legs
 
 
-def item_legs(item: missions.MissionItem, ref, home: Home, params) -> list[Leg]:
+def item_legs(item: mission_protocol.MissionItem, ref, home: Home, params) -> list[Leg]:
     """The legs of one mission item; the last one carries the tag ("item", seq)."""
     tag = ("item", item.seq)
     ref = np.asarray(ref, np.float64)
     cmd = item.command
-    if cmd == missions.NAV_WAYPOINT:
+    if cmd == mission_protocol.NAV_WAYPOINT:
         hold = item.param1 if math.isfinite(item.param1) and item.param1 > 0 else 0.0
         radius = item.param2 if math.isfinite(item.param2) and item.param2 > 0 else None
         return [Leg("move", item.local(home), seconds=hold, acceptance=radius, tag=tag)]
-    if cmd == missions.NAV_TAKEOFF:
+    if cmd == mission_protocol.NAV_TAKEOFF:
         return takeoff_legs(ref, item.local(home)[2], tag=tag)
-    if cmd == missions.NAV_LAND:
+    if cmd == mission_protocol.NAV_LAND:
         if not item.has_position():
             return land_legs(ref, tag=tag)
         p = item.local(home)
         return [Leg("move", np.array([p[0], p[1], ref[2]])), *land_legs(p, tag=tag)]
-    if cmd == missions.NAV_RETURN_TO_LAUNCH:
+    if cmd == mission_protocol.NAV_RETURN_TO_LAUNCH:
         return rtl_legs(ref, params, tag=tag)
-    if cmd == missions.NAV_DELAY:
+    if cmd == mission_protocol.NAV_DELAY:
         return [Leg("wait", seconds=float(item.param1), tag=tag)]
-    if cmd == missions.DO_CHANGE_SPEED:
+    if cmd == mission_protocol.DO_CHANGE_SPEED:
         return [Leg("speed", speed=(item.param1, item.param2), tag=tag)]
-    if cmd in missions.PAYLOAD_COMMANDS:  # no gimbal or camera here: reached at once (missions.PAYLOAD_COMMANDS)
+    if (
+        cmd in mission_protocol.PAYLOAD_COMMANDS
+    ):  # no gimbal or camera here: reached at once (mission_protocol.PAYLOAD_COMMANDS)
         return [Leg("none", tag=tag)]
     raise ValueError(f"mission item {item.seq}: command {cmd} has no legs")
 
 
-def mission_takeoff_altitude(items: list[missions.MissionItem], start: int, home: Home, params) -> float | None:
+def mission_takeoff_altitude(items: list[mission_protocol.MissionItem], start: int, home: Home, params) -> float | None:
     """Altitude above home a mission started on the ground first takes off to, or None when its
     first item is itself a take-off: MIS_TAKEOFF_ALT, or the first waypoint's altitude if higher
     (PX4 src/modules/navigator/mission.cpp: a mission started landed takes off first)."""
     first = items[start]
-    if first.command == missions.NAV_TAKEOFF:
+    if first.command == mission_protocol.NAV_TAKEOFF:
         return None
     alt = params["MIS_TAKEOFF_ALT"]
-    if first.command == missions.NAV_WAYPOINT:
+    if first.command == mission_protocol.NAV_WAYPOINT:
         alt = max(alt, float(first.local(home)[2]))
     return alt
 

@@ -1,7 +1,7 @@
 """The refusal of every command in the supported table (docs/commander_tables.py commands, from
 `CommandHandlers._COMMANDS`), in one place, through packed MAVLink bytes: what a ground station
 sends when the vehicle cannot do it, the one COMMAND_ACK's result, the STATUSTEXT saying why, and
-that nothing changed. The refusals tests/runtime/test_commander_commands.py already checks are not
+that nothing changed. The refusals tests/autopilot/test_commander_commands.py already checks are not
 repeated here; `test_every_supported_command_has_a_refusal_test` fails when a command is added to
 the table without one here or there.
 
@@ -32,7 +32,7 @@ import pytest
 from commander_gcs import Gcs, ack, mission_item, of_type, texts, upload
 from pymavlink.dialects.v20 import common as M
 
-from quadpilot.runtime.commands import CommandHandlers
+from quadpilot.autopilot.commands import CommandHandlers
 
 NAN7 = [math.nan] * 7
 # command → the tests that check its refusal (this file's, and test_commander_commands.py's)

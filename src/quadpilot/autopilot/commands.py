@@ -41,7 +41,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.core.state import POS_XY, Z
 from quadpilot.link.frames import geodetic_to_local
 
-from . import missions, navigator, streams
+from . import mission_protocol, navigator, streams
 from .navigator import Leg
 
 M = mavlink2
@@ -141,7 +141,7 @@ class CommandHandlers:
             return why
         s = self.state
         if math.isfinite(c.z):
-            alt = c.z if c.frame in missions.RELATIVE_FRAMES else c.z - self.home.alt_m
+            alt = c.z if c.frame in mission_protocol.RELATIVE_FRAMES else c.z - self.home.alt_m
         elif self.mode == TAKEOFF and self.nav.taking_off:
             return ACCEPTED, None  # the same take-off again
         else:
@@ -181,7 +181,7 @@ class CommandHandlers:
             return M.MAV_RESULT_COMMAND_INT_ONLY, "DO_REPOSITION: send it as COMMAND_INT"
         if (why := self._need("Goto")) is not None:
             return why
-        if c.frame not in missions.GLOBAL_FRAMES:
+        if c.frame not in mission_protocol.GLOBAL_FRAMES:
             return DENIED, f"Goto denied: frame {c.frame}, expected 0, 3, 5 or 6"
         goal = (
             self.nav.leg.goal.copy()
@@ -193,7 +193,7 @@ class CommandHandlers:
                 return DENIED, f"Goto denied: lat/lon {c.x}/{c.y} degE7 off the globe"
             goal[0:2] = geodetic_to_local(c.x, c.y, 0, self.home)[0:2]
         if math.isfinite(c.z):
-            goal[2] = c.z if c.frame in missions.RELATIVE_FRAMES else c.z - self.home.alt_m
+            goal[2] = c.z if c.frame in mission_protocol.RELATIVE_FRAMES else c.z - self.home.alt_m
         if (fence := navigator.outside_fence(goal, self.params)) is not None:
             return DENIED, f"Goto denied: {fence}"
         self._leave_mission()

@@ -2,7 +2,7 @@
 run, side by side in one GIF.
 
     quad-train --task hover --snapshot-every 5 --out runs/hover-montage
-    python -m quadpilot.studies.montage runs/hover-montage -o montage.gif
+    python -m quadpilot.studies.learning_montage runs/hover-montage -o montage.gif
 
 Reads the run's snapshots (`RUN/snapshots/policy-<steps>.pt`, written by quad-train
 --snapshot-every), picks --snapshots of them evenly from the first (the untrained policy, 0 steps)
@@ -146,7 +146,7 @@ def result_text(result: dict, window_s: float) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(
-        prog="python -m quadpilot.studies.montage",
+        prog="python -m quadpilot.studies.learning_montage",
         description=__doc__.split("\n\n")[0],
         epilog="\n\n".join(__doc__.split("\n\n")[1:]),
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -201,7 +201,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    return run_command("quadpilot.studies.montage", lambda: _montage(build_parser().parse_args(argv)))
+    return run_command("quadpilot.studies.learning_montage", lambda: _montage(build_parser().parse_args(argv)))
 
 
 def _montage(args) -> int:

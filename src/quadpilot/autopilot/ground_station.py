@@ -8,7 +8,7 @@ vehicle's datagrams, so the answers must come from, and arrive at, the socket th
 Without a commander it is today's telemetry: HEARTBEAT (MAV_AUTOPILOT_GENERIC) and SYS_STATUS at
 1 Hz, ATTITUDE and LOCAL_POSITION_NED at `telemetry_hz`, GLOBAL_POSITION_INT at 5 Hz, on simulated
 time (`step`), and whatever the ground station sends is read and discarded. With a commander
-(`runtime.commander`), `serve` hands every message to it and sends its answers, and the commander's
+(`autopilot.commander`), `serve` hands every message to it and sends its answers, and the commander's
 own streams (PX4's messages and rates, which the ground station may change) replace this telemetry;
 the node still reports its safety events here with STATUSTEXT. Telemetry is best effort: nobody
 listening costs nothing and stops nothing.
