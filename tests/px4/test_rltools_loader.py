@@ -33,6 +33,7 @@ from raptor_files import (
     fly_like_mc_raptor,
     foundation,
     foundation_stepper,
+    members,
     observations,
     our_stepper,
     patch_float,
@@ -135,6 +136,16 @@ def test_rltools_loads_our_file_and_it_passes_mc_raptors_check(harness, good):
     assert f"Checkpoint name: {FOUNDATION_NAME}" in done.stdout
     diff = float(re.search(r"Checkpoint test passed with diff ([0-9.]+)", done.stdout).group(1))
     assert diff < 1e-6  # mc_raptor's bar is 1e-5
+
+
+def test_rltools_writer_writes_our_members_and_our_reader_reads_its_file(harness, good, tmp_path):
+    done = run(harness, "save", good, tmp_path / "theirs.tar")
+    assert done.returncode == 0, done.stdout + done.stderr
+    theirs = (tmp_path / "theirs.tar").read_bytes()
+    assert list(members(theirs)) == rt.MEMBER_NAMES  # the same members in the same order ...
+    assert members(theirs) == members(good.read_bytes())  # ... holding the same bytes
+    back = rt.parse_policy_tar(theirs)
+    assert back.checkpoint_name == FOUNDATION_NAME and back.replay_max_difference <= 1e-5
 
 
 def test_executor_at_mc_raptor_timing_gives_our_actions(harness, good, tmp_path):

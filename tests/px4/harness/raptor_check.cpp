@@ -13,6 +13,8 @@
 //
 // usage: raptor_check check POLICY_TAR
 //        raptor_check fly POLICY_TAR OBSERVATIONS_F32 ACTIONS_OUT_F32
+//        raptor_check save POLICY_TAR OUT_TAR   (RLtools' tar writer writes back what it loaded,
+//                                                 the example loaded with RLtools' tensor loader)
 // OBSERVATIONS_F32: N records of 13 float32 (position 3, quaternion w x y z, linear velocity 3,
 // angular velocity 3), one per gyro update 2.5 ms apart. ACTIONS_OUT_F32: N x 4 float32.
 // exit 0: accepted (and flown); 1: refused as mc_raptor refuses; 2: usage or I/O. RLtools' own
@@ -28,12 +30,13 @@
 #include <rl_tools/inference/applications/l2f/l2f.h>
 #include <rl_tools/inference/applications/l2f/operations_generic.h>
 
+// the writer (save mode) first, the readers (and the generic part, once) after it
+#define RL_TOOLS_PERSIST_BACKENDS_TAR_OPERATIONS_CPU_NOT_INCLUDE_GENERIC
+#include <rl_tools/persist/backends/tar/operations_cpu.h>
 #ifdef QP_RLTOOLS_POSIX
 #include <rl_tools/persist/backends/tar/operations_posix.h>
-#else
-#include <rl_tools/persist/backends/tar/operations_cpu.h>
-#include <rl_tools/persist/backends/tar/operations_generic.h>
 #endif
+#include <rl_tools/persist/backends/tar/operations_generic.h>
 #include <rl_tools/nn/optimizers/adam/instance/persist.h>  // as mc_raptor.hpp; brings the parameters' persist
 #include <rl_tools/nn/layers/dense/persist.h>
 #include <rl_tools/nn/layers/gru/persist.h>
@@ -232,9 +235,50 @@ static int fly(DEVICE& device, RNG& rng, POLICY& policy, const char* obs_path, c
     return 0;
 }
 
+// the layout RLtools' own writer gives this policy and example (as its raptor port_checkpoint does)
+static int save(DEVICE& device, POLICY& policy, const Loaded& loaded, const char* out_path) {
+    using EXAMPLE_IN = rlt::Tensor<rlt::tensor::Specification<T, TI, rlt::tensor::Shape<TI, 500, EXAMPLE_BATCH, EXAMPLE_INPUT_DIM>>>;
+    using EXAMPLE_OUT = rlt::Tensor<rlt::tensor::Specification<T, TI, rlt::tensor::Shape<TI, 500, EXAMPLE_BATCH, EXAMPLE_OUTPUT_DIM>>>;
+    EXAMPLE_IN example_input;
+    EXAMPLE_OUT example_output;
+    rlt::malloc(device, example_input);
+    rlt::malloc(device, example_output);
+#ifdef QP_RLTOOLS_POSIX
+    using SPEC = rlt::persist::backends::tar::ReaderGroupSpecification<TI>;
+    rlt::persist::backends::tar::ReaderGroup<SPEC> reader_group;
+    reader_group.data.data = loaded.bytes.data();
+    reader_group.data.size = loaded.bytes.size();
+#else
+    using SPEC = rlt::persist::backends::tar::ReaderGroupSpecification<TI>;
+    rlt::persist::backends::tar::ReaderGroup<SPEC> reader_group;
+    reader_group.data = loaded.bytes.data();
+    reader_group.size = loaded.bytes.size();
+#endif
+    auto example_read = rlt::get_group(device, reader_group, "example");
+    if (!rlt::load(device, example_input, example_read, "input") || !rlt::load(device, example_output, example_read, "output")) {
+        printf("Failed to load the example\n");
+        return 1;
+    }
+    rlt::persist::backends::tar::Writer tar_writer;
+    rlt::persist::backends::tar::WriterGroup<rlt::persist::backends::tar::WriterGroupSpecification<TI, decltype(tar_writer)>> tar_group;
+    tar_group.writer = &tar_writer;
+    auto actor_group = rlt::create_group(device, tar_group, "actor");
+    rlt::set_attribute(device, actor_group, "checkpoint_name", loaded.checkpoint_name);
+    rlt::save(device, policy, actor_group);
+    auto example_group = rlt::create_group(device, tar_group, "example");
+    rlt::save(device, example_input, example_group, "input");
+    rlt::save(device, example_output, example_group, "output");
+    rlt::persist::backends::tar::finalize(device, tar_writer);
+    FILE* fo = fopen(out_path, "wb");
+    if (!fo || fwrite(tar_writer.buffer.data(), 1, tar_writer.buffer.size(), fo) != tar_writer.buffer.size()) { printf("cannot write %s\n", out_path); return 2; }
+    fclose(fo);
+    return 0;
+}
+
 int main(int argc, char** argv) {
-    if (argc < 3 || (strcmp(argv[1], "check") != 0 && strcmp(argv[1], "fly") != 0) || (strcmp(argv[1], "fly") == 0 && argc != 5)) {
-        printf("usage: raptor_check check POLICY_TAR | fly POLICY_TAR OBSERVATIONS_F32 ACTIONS_OUT_F32\n");
+    bool fly_mode = argc == 5 && strcmp(argv[1], "fly") == 0, save_mode = argc == 4 && strcmp(argv[1], "save") == 0;
+    if (!(argc == 3 && strcmp(argv[1], "check") == 0) && !fly_mode && !save_mode) {
+        printf("usage: raptor_check check POLICY_TAR | fly POLICY_TAR OBSERVATIONS_F32 ACTIONS_OUT_F32 | save POLICY_TAR OUT_TAR\n");
         return 2;
     }
     DEVICE device;
@@ -246,6 +290,7 @@ int main(int argc, char** argv) {
     if (!load_policy(device, argv[2], policy, loaded)) return 1;
     if (!test_policy(device, rng, policy, loaded)) { printf("Checkpoint test failed\n"); return 1; }
     fclose(loaded.f);
-    if (strcmp(argv[1], "fly") == 0) return fly(device, rng, policy, argv[3], argv[4]);
+    if (fly_mode) return fly(device, rng, policy, argv[3], argv[4]);
+    if (save_mode) return save(device, policy, loaded, argv[3]);
     return 0;
 }
