@@ -164,3 +164,33 @@ def foundation_stepper():
         return action
 
     return step
+
+
+def _bias_moved(data: bytes) -> bytes:
+    member = "actor/layers/2/biases/parameters/data"
+    at = data_offset(data, member)
+    return patch_float(data, member, 0, float(np.frombuffer(data[at : at + 4], "<f4")[0]) + 2e-5)
+
+
+# ways to damage a good policy.tar, each a function of its bytes
+DAMAGE = {
+    "a weight changed": lambda d: patch_float(d, "actor/layers/1/weights_hidden/parameters/data", 7, 0.9),
+    "another shape": wider_first_layer,
+    "NaN in the first example input steps": lambda d: patch_float(
+        d, "example/input/data", example_index(2, 1, 4, rt.OBS_DIM), np.nan
+    ),
+    "NaN in the first example output steps": lambda d: patch_float(
+        d, "example/output/data", example_index(2, 1, 1, rt.ACTION_DIM), np.nan
+    ),
+    "truncated in the weights": lambda d: d[:6000],
+    "truncated in the example input": lambda d: d[: len(d) // 2],
+    "an output bias moved by 2e-5": _bias_moved,
+    "NaN at example step 300": lambda d: patch_float(
+        d, "example/input/data", example_index(300, 0, 5, rt.OBS_DIM), np.nan
+    ),
+    "example output changed at step 300": lambda d: patch_float(
+        d, "example/output/data", example_index(300, 1, 2, rt.ACTION_DIM), 0.25
+    ),
+    "truncated in the example output": lambda d: d[: len(d) - 20_000],
+    "a weight's low-order byte changed": lambda d: flip_low_byte(d, "actor/layers/0/weights/parameters/data", 3),
+}

@@ -1,0 +1,134 @@
+"""Our policy.tar against RLtools' own code, as PX4's mc_raptor loads it: the record docs/px4.md quotes.
+
+    .venv/bin/python benchmarks/rltools_proof.py --out docs/bench/rltools_px4.json \\
+        --px4-include /path/to/rl-tools/include --px4-commit 15940da2a8334d7532c4a5650ee4e09526206414
+
+Writes the RAPTOR foundation policy (PyPI foundation-policy) as policy.tar with
+`runtime.rltools_tar.write_policy_tar`, then, for each RLtools (the pinned `rltools` sdist from PyPI,
+and the checkout given with --px4-include, which must be at the commit PX4 pins for mc_raptor),
+builds tests/px4/harness/raptor_check.cpp and records: mc_raptor's start-up check on the file, RLtools'
+L2F executor at mc_raptor's timing on 2,000 gyro updates against our forward and foundation-policy's
+(largest action difference), whether RLtools' own writer writes the same members, and what the loader
+does with each damaged copy (tests/px4/raptor_files.DAMAGE), next to what our reader says.
+The figures are differences of float32 arithmetic, not timings: the load on the machine does not
+change them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "px4"))
+
+import raptor_build as build  # noqa: E402
+import raptor_files as files  # noqa: E402
+
+from quadpilot.runtime import rltools_tar as rt  # noqa: E402
+
+N_GYRO = 2000
+
+
+def _outcome(done) -> dict:
+    text = (done.stdout + done.stderr).strip().splitlines()
+    return {"exit": done.returncode, "last_line": text[-1] if text else ""}
+
+
+def _loader(harness: Path, good: Path, work: Path) -> dict:
+    check = build.run(harness, "check", good)
+    diff = [ln for ln in check.stdout.splitlines() if ln.startswith("Checkpoint test diff: ")]
+    obs = files.observations(N_GYRO)
+    obs.tofile(work / "obs.f32")
+    fly = build.run(harness, "fly", good, work / "obs.f32", work / "actions.f32")
+    if check.returncode != 0 or fly.returncode != 0:
+        raise SystemExit(f"rltools_proof: the harness refused the good file:\n{check.stdout}{fly.stdout}")
+    theirs = np.fromfile(work / "actions.f32", dtype="<f4").reshape(-1, rt.ACTION_DIM)
+    ours = files.fly_like_mc_raptor(files.our_stepper(rt.read_policy_tar(good).weights), obs)
+    package = files.fly_like_mc_raptor(files.foundation_stepper(), obs)
+    save = build.run(harness, "save", good, work / "theirs.tar")
+    theirs_tar = (work / "theirs.tar").read_bytes() if save.returncode == 0 else b""
+    same = bool(theirs_tar) and files.members(theirs_tar) == files.members(good.read_bytes())
+    damage = {}
+    for how, damaged in files.DAMAGE.items():
+        path = work / "damaged.tar"
+        path.write_bytes(damaged(good.read_bytes()))
+        damage[how] = _outcome(build.run(harness, "check", path))
+    return {
+        "check_mean_abs_diff": float(diff[0].split(": ")[1]),
+        "check_passed": True,
+        "gyro_updates": N_GYRO,
+        "native_steps": int(fly.stdout.split(" gyro updates, ")[1].split()[0]),
+        "max_action_diff_our_forward": float(np.max(np.abs(theirs - ours))),
+        "max_action_diff_foundation_policy": float(np.max(np.abs(theirs - package))),
+        "writer_same_members_and_bytes": bool(same),
+        "damage": damage,
+    }
+
+
+def _our_reader(good: Path, work: Path, with_sha256: bool) -> dict:
+    """What read_policy_tar says of each damaged copy, with the good file's SHA-256 beside it or not."""
+    out = {}
+    for how, damaged in files.DAMAGE.items():
+        path = work / "damaged.tar"
+        path.write_bytes(damaged(good.read_bytes()))
+        rt.sha256_path(path).unlink(missing_ok=True)
+        if with_sha256:
+            rt.sha256_path(path).write_bytes(rt.sha256_path(good).read_bytes())
+        try:
+            rt.read_policy_tar(path)
+            out[how] = "accepted"
+        except rt.PolicyTarError as e:
+            out[how] = str(e).split(": ", 1)[1]  # without the temporary path
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--px4-include", type=Path, help="include/ of RLtools at the commit PX4 pins")
+    p.add_argument("--px4-commit", help="that commit (recorded as given)")
+    a = p.parse_args(argv)
+    w, ex_in, ex_out = files.foundation()
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        good = work / "policy.tar"
+        digest = rt.write_policy_tar(good, w, ex_in, ex_out, files.FOUNDATION_NAME)
+        loaders = {f"rltools {build.RLTOOLS_VERSION}": (build.rltools_headers(), False)}
+        if a.px4_include:
+            loaders[f"PX4's pin {(a.px4_commit or 'unknown')[:8]}"] = (a.px4_include, True)
+        args = list(argv if argv is not None else sys.argv[1:])
+        if a.px4_include:  # a path on the machine that ran it: not recorded
+            args = [x if x != str(a.px4_include) else "RL_TOOLS_CHECKOUT/include" for x in args]
+        result = {
+            "command": " ".join(["benchmarks/rltools_proof.py", *args]),
+            "rltools_sdist": {"version": build.RLTOOLS_VERSION, "sha256": build.RLTOOLS_SDIST_SHA256},
+            "px4_pin_commit": a.px4_commit,
+            "machine": {"python": platform.python_version(), "numpy": np.__version__, "platform": platform.platform()},
+            "policy": {
+                "checkpoint_name": files.FOUNDATION_NAME,
+                "source": "foundation-policy 1.0.2 (PyPI)",
+                "sha256": digest,
+                "bytes": good.stat().st_size,
+                "parameters": rt.N_PARAMETERS,
+                "our_replay_max_difference": rt.read_policy_tar(good).replay_max_difference,
+            },
+            "loaders": {
+                name: _loader(build.compile_harness(inc, posix), good, work) for name, (inc, posix) in loaders.items()
+            },
+            "our_reader_content_only": _our_reader(good, work, with_sha256=False),
+            "our_reader_with_sha256": _our_reader(good, work, with_sha256=True),
+        }
+    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"rltools_proof: wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
