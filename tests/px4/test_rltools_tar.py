@@ -9,6 +9,8 @@ import tarfile
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from raptor_files import (
     FOUNDATION_NAME,
     example_index,
@@ -175,3 +177,26 @@ def test_reader_names_the_file_in_its_one_line(tmp_path):
     assert str(e.value).startswith(f"{path}: ") and "\n" not in str(e.value)
     with pytest.raises(rt.PolicyTarError, match="cannot read"):
         rt.read_policy_tar(tmp_path / "missing.tar")
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(draw=st.data(), where=st.sampled_from(["headers", "anywhere", "cut"]))
+def test_any_damaged_file_is_refused_in_one_line_or_replays(draw, where):
+    """Bytes changed in the headers (where the tar parser looks) or anywhere, or the file cut
+    anywhere: the reader refuses with a PolicyTarError or returns a policy whose example replays."""
+    data = bytearray(good_bytes())
+    n_blocks = len(data) // 512
+    if where == "cut":
+        data = data[: draw.draw(st.integers(0, len(data) - 1))]
+    for _ in range(draw.draw(st.integers(1, 6)) if where != "cut" else 0):
+        if where == "headers":  # a header block's fields: name, mode, ids, size, mtime, checksum, type, magic
+            at = 512 * draw.draw(st.integers(0, n_blocks - 1)) + draw.draw(st.integers(0, 264))
+        else:
+            at = draw.draw(st.integers(0, len(data) - 1))
+        data[at] = draw.draw(st.integers(0, 255))
+    try:
+        back = rt.parse_policy_tar(bytes(data))
+    except rt.PolicyTarError as e:
+        assert "\n" not in str(e)
+    else:
+        assert back.replay_max_difference <= rt.REPLAY_TOLERANCE

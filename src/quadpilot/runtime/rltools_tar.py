@@ -199,8 +199,10 @@ def check_weights(weights: dict[str, object]) -> dict[str, np.ndarray]:
 
 
 def replay_difference(weights: dict[str, np.ndarray], example_in: np.ndarray, example_out: np.ndarray) -> float:
-    """Largest absolute difference between the stored example output and our forward, every step."""
-    return float(np.max(np.abs(policy_sequence(weights, example_in) - example_out)))
+    """Largest absolute difference between the stored example output and our forward, every step
+    (NaN when the forward overflows: weights from a hostile file may be huge)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return float(np.max(np.abs(policy_sequence(weights, example_in) - example_out)))
 
 
 # --- writing ---------------------------------------------------------------------------------------
