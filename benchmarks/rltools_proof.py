@@ -89,6 +89,15 @@ def _our_reader(good: Path, work: Path, with_sha256: bool) -> dict:
     return out
 
 
+def _low_byte_effect(good: Path) -> float:
+    """How far the example outputs move when one weight's low-order byte changes (DAMAGE's case)."""
+    damaged = files.DAMAGE["a weight's low-order byte changed"](good.read_bytes())
+    w0, w1 = rt.parse_policy_tar(good.read_bytes()), rt.parse_policy_tar(damaged)
+    return float(
+        np.max(np.abs(rt.policy_sequence(w1.weights, w0.example_in) - rt.policy_sequence(w0.weights, w0.example_in)))
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, required=True)
@@ -118,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
                 "bytes": good.stat().st_size,
                 "parameters": rt.N_PARAMETERS,
                 "our_replay_max_difference": rt.read_policy_tar(good).replay_max_difference,
+                "low_order_byte_max_output_change": _low_byte_effect(good),
             },
             "loaders": {
                 name: _loader(build.compile_harness(inc, posix), good, work) for name, (inc, posix) in loaders.items()

@@ -36,8 +36,9 @@ uid/gid 1000, user/group, mtime 0), so the same input gives the same bytes.
 `MAX_FILE_BYTES`, anything but the exact member names (no duplicates, no links, no long-name or
 pax headers RLtools would read differently), any metadata but the exact text for the expected
 shape and dtype, any non-finite value, and it replays the WHOLE stored example with its own forward
-(mc_raptor's check replays 2 x 5 steps). A changed low-order bit of a weight moves the outputs by
-about 1e-8 and passes any replay; the SHA-256 beside the file (`policy.tar.sha256`) catches it.
+(mc_raptor's check replays 2 x 5 steps). A changed low-order byte of a weight moves the outputs by
+less than 1e-8 (docs/px4.md) and passes any replay; the SHA-256 beside the file
+(`policy.tar.sha256`) catches it.
 Each refusal is a `PolicyTarError` (a ValueError) in one line.
 """
 
