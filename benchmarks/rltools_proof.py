@@ -8,7 +8,7 @@ Writes the RAPTOR foundation policy (PyPI foundation-policy) as policy.tar with
 and the checkout given with --px4-include, which must be at the commit PX4 pins for mc_raptor),
 builds tests/px4/harness/raptor_check.cpp and records: mc_raptor's start-up check on the file, RLtools'
 L2F executor at mc_raptor's timing on 2,000 gyro updates against our forward and foundation-policy's
-(largest action difference), whether RLtools' own writer writes the same members, and what the loader
+(largest action difference), whether RLtools' own writer writes the same bytes, and what the loader
 does with each damaged copy (tests/px4/raptor_files.DAMAGE), next to what our reader says.
 The figures are differences of float32 arithmetic, not timings: the load on the machine does not
 change them.
@@ -54,7 +54,7 @@ def _loader(harness: Path, good: Path, work: Path) -> dict:
     package = files.fly_like_mc_raptor(files.foundation_stepper(), obs)
     save = build.run(harness, "save", good, work / "theirs.tar")
     theirs_tar = (work / "theirs.tar").read_bytes() if save.returncode == 0 else b""
-    same = bool(theirs_tar) and files.members(theirs_tar) == files.members(good.read_bytes())
+    same = theirs_tar == good.read_bytes()
     damage = {}
     for how, damaged in files.DAMAGE.items():
         path = work / "damaged.tar"
@@ -67,7 +67,7 @@ def _loader(harness: Path, good: Path, work: Path) -> dict:
         "native_steps": int(fly.stdout.split(" gyro updates, ")[1].split()[0]),
         "max_action_diff_our_forward": float(np.max(np.abs(theirs - ours))),
         "max_action_diff_foundation_policy": float(np.max(np.abs(theirs - package))),
-        "writer_same_members_and_bytes": bool(same),
+        "rltools_writer_writes_the_same_bytes": bool(same),
         "damage": damage,
     }
 
@@ -98,11 +98,34 @@ def _low_byte_effect(good: Path) -> float:
     )
 
 
+def _px4_blob(blob_path: Path, weights: dict, harnesses: dict[str, Path]) -> dict:
+    """PX4's own policy.tar (its mc_raptor blob) against our reader and writer and each loader."""
+    blob = blob_path.read_bytes()
+    p = rt.parse_policy_tar(blob)
+    ours = rt.policy_tar_bytes(p.weights, p.example_in, p.example_out, p.checkpoint_name)
+    checks = {}
+    for name, harness in harnesses.items():
+        done = build.run(harness, "check", blob_path)
+        diff = [ln for ln in done.stdout.splitlines() if ln.startswith("Checkpoint test diff: ")]
+        checks[name] = {"exit": done.returncode, "check_mean_abs_diff": float(diff[0].split(": ")[1])}
+    return {
+        "sha256": rt.sha256_hex(blob),
+        "bytes": len(blob),
+        "checkpoint_name": p.checkpoint_name,
+        "our_replay_max_difference": p.replay_max_difference,
+        "weights_equal_foundation_policy": all(np.array_equal(p.weights[n], weights[n]) for n in weights),
+        "our_writer_writes_it_and_two_end_blocks": ours == blob + bytes(2 * 512),
+        "loaders": checks,
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--px4-include", type=Path, help="include/ of RLtools at the commit PX4 pins")
     p.add_argument("--px4-commit", help="that commit (recorded as given)")
+    p.add_argument("--px4-blob", type=Path, help="PX4's src/modules/mc_raptor/blob/policy.tar")
+    p.add_argument("--px4-blob-commit", help="the rl-tools/px4-blob commit it is from (recorded as given)")
     a = p.parse_args(argv)
     w, ex_in, ex_out = files.foundation()
     with tempfile.TemporaryDirectory() as tmp:
@@ -112,9 +135,10 @@ def main(argv: list[str] | None = None) -> int:
         loaders = {f"rltools {build.RLTOOLS_VERSION}": (build.rltools_headers(), False)}
         if a.px4_include:
             loaders[f"PX4's pin {(a.px4_commit or 'unknown')[:8]}"] = (a.px4_include, True)
+        harnesses = {name: build.compile_harness(inc, posix) for name, (inc, posix) in loaders.items()}
         args = list(argv if argv is not None else sys.argv[1:])
-        if a.px4_include:  # a path on the machine that ran it: not recorded
-            args = [x if x != str(a.px4_include) else "RL_TOOLS_CHECKOUT/include" for x in args]
+        hidden = {str(a.px4_include): "RL_TOOLS_CHECKOUT/include", str(a.px4_blob): "PX4_BLOB/policy.tar"}
+        args = [hidden.get(x, x) for x in args]  # paths on the machine that ran it: not recorded
         result = {
             "command": " ".join(["benchmarks/rltools_proof.py", *args]),
             "rltools_sdist": {"version": build.RLTOOLS_VERSION, "sha256": build.RLTOOLS_SDIST_SHA256},
@@ -129,9 +153,8 @@ def main(argv: list[str] | None = None) -> int:
                 "our_replay_max_difference": rt.read_policy_tar(good).replay_max_difference,
                 "low_order_byte_max_output_change": _low_byte_effect(good),
             },
-            "loaders": {
-                name: _loader(build.compile_harness(inc, posix), good, work) for name, (inc, posix) in loaders.items()
-            },
+            "loaders": {name: _loader(harness, good, work) for name, harness in harnesses.items()},
+            "px4_blob": _px4_blob(a.px4_blob, w, harnesses) | {"commit": a.px4_blob_commit} if a.px4_blob else None,
             "our_reader_content_only": _our_reader(good, work, with_sha256=False),
             "our_reader_with_sha256": _our_reader(good, work, with_sha256=True),
         }

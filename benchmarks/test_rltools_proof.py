@@ -31,7 +31,7 @@ def test_rltools_proof_reproduces_the_committed_record(tmp_path):
     name = f"rltools {build.RLTOOLS_VERSION}"
     fresh, kept = now["loaders"][name], committed["loaders"][name]
     assert {k: v["exit"] for k, v in fresh["damage"].items()} == {k: v["exit"] for k, v in kept["damage"].items()}
-    assert fresh["writer_same_members_and_bytes"] and fresh["native_steps"] == kept["native_steps"]
+    assert fresh["rltools_writer_writes_the_same_bytes"] and fresh["native_steps"] == kept["native_steps"]
     for key in ("check_mean_abs_diff", "max_action_diff_our_forward", "max_action_diff_foundation_policy"):
         assert fresh[key] <= 1e-5 and kept[key] <= 1e-5
     assert now["our_reader_content_only"] == committed["our_reader_content_only"]

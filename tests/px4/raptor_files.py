@@ -183,7 +183,7 @@ DAMAGE = {
         d, "example/output/data", example_index(2, 1, 1, rt.ACTION_DIM), np.nan
     ),
     "truncated in the weights": lambda d: d[:6000],
-    "truncated in the example input": lambda d: d[: len(d) // 2],
+    "truncated in the example input": lambda d: d[: data_offset(d, "example/input/data") + 40_000],
     "an output bias moved by 2e-5": _bias_moved,
     "NaN at example step 300": lambda d: patch_float(
         d, "example/input/data", example_index(300, 0, 5, rt.OBS_DIM), np.nan
@@ -191,6 +191,6 @@ DAMAGE = {
     "example output changed at step 300": lambda d: patch_float(
         d, "example/output/data", example_index(300, 1, 2, rt.ACTION_DIM), 0.25
     ),
-    "truncated in the example output": lambda d: d[: len(d) - 20_000],
+    "truncated in the example output": lambda d: d[: data_offset(d, "example/output/data") + 4_000],
     "a weight's low-order byte changed": lambda d: flip_low_byte(d, "actor/layers/0/weights/parameters/data", 3),
 }

@@ -35,6 +35,8 @@ from raptor_files import (
 
 from quadpilot.runtime import rltools_tar as rt
 
+PX4_BLOB_ENV = "QUADPILOT_PX4_RAPTOR_BLOB"
+
 
 def built(include, posix: bool):
     """The harness, or (outside tool missing) a skip in one line; in CI (env CI set) a failure."""
@@ -75,14 +77,31 @@ def test_rltools_loads_our_file_and_it_passes_mc_raptors_check(harness, good):
     assert diff < 1e-6  # mc_raptor's bar is 1e-5
 
 
-def test_rltools_writer_writes_our_members_and_our_reader_reads_its_file(harness, good, tmp_path):
+def test_rltools_writer_writes_our_bytes_and_our_reader_reads_its_file(harness, good, tmp_path):
     done = build.run(harness, "save", good, tmp_path / "theirs.tar")
     assert done.returncode == 0, done.stdout + done.stderr
     theirs = (tmp_path / "theirs.tar").read_bytes()
-    assert list(members(theirs)) == rt.MEMBER_NAMES  # the same members in the same order ...
-    assert members(theirs) == members(good.read_bytes())  # ... holding the same bytes
+    assert list(members(theirs)) == rt.MEMBER_NAMES
+    assert theirs == good.read_bytes()  # RLtools' writer, given what it loaded, writes our file byte for byte
     back = rt.parse_policy_tar(theirs)
     assert back.checkpoint_name == FOUNDATION_NAME and back.replay_max_difference <= 1e-5
+
+
+def test_px4s_shipped_policy_tar_is_what_our_writer_writes(harness):
+    """PX4's own file (the mc_raptor blob submodule, rl-tools/px4-blob, not on a registry): our reader
+    accepts it, mc_raptor's check passes, and our writer given its content writes its bytes (and the
+    two zero blocks that end a tar, which the blob lacks)."""
+    path = os.environ.get(PX4_BLOB_ENV)
+    if not path:
+        pytest.skip(f"set {PX4_BLOB_ENV} to PX4's src/modules/mc_raptor/blob/policy.tar (docs/px4.md)")
+    blob = Path(path).read_bytes()
+    p = rt.parse_policy_tar(blob)
+    assert p.checkpoint_name == FOUNDATION_NAME
+    assert rt.policy_tar_bytes(p.weights, p.example_in, p.example_out, p.checkpoint_name) == blob + bytes(1024)
+    w, _, _ = foundation()
+    assert all(np.array_equal(p.weights[n], w[n]) for n in w)  # foundation-policy's weights
+    done = build.run(harness, "check", path)
+    assert done.returncode == 0 and "Checkpoint test passed" in done.stdout, done.stdout + done.stderr
 
 
 def test_executor_at_mc_raptor_timing_gives_our_actions(harness, good, tmp_path):

@@ -29,8 +29,9 @@ The example is `example_in` (500, 2, 22) and `example_out` (500, 2, 4) float32, 
 as blob/policy.h declares it (mc_raptor seeks into it with those strides).
 
 The archive holds exactly the members RLtools' tar writer makes for this model
-(persist/backends/tar and the layers' persist.h), in its order, with fixed headers (mode 0644,
-uid/gid 1000, user/group, mtime 0), so the same input gives the same bytes.
+(persist/backends/tar and the layers' persist.h), in its order, with its header values (mode 0644,
+uid/gid 1000, user/group, mtime 0): the same input gives the same bytes, the bytes RLtools' own
+writer writes (tests/px4 compares them; PX4's shipped blob/policy.tar is one, docs/px4.md).
 
 `read_policy_tar` treats the file as untrusted: it never extracts to disk, refuses a file over
 `MAX_FILE_BYTES`, anything but the exact member names (no duplicates, no links, no long-name or
@@ -237,14 +238,24 @@ def policy_tar_bytes(
             arr = arrays[what]
             contents[member] = _tensor_meta(shape) if member.endswith("/meta") else arr.tobytes()
     buf = io.BytesIO()
+    headers = []
     with tarfile.open(fileobj=buf, mode="w", format=tarfile.USTAR_FORMAT) as tar:
         for member in MEMBER_NAMES:
             info = tarfile.TarInfo(member)
             info.size, info.mode, info.mtime = len(contents[member]), 0o644, 0
             info.uid = info.gid = 1000
             info.uname, info.gname = "user", "group"
+            headers.append(tar.offset)
             tar.addfile(info, io.BytesIO(contents[member]))
-    return buf.getvalue()
+        end = tar.offset
+    # RLtools' writer (persist/backends/tar write_entry and finalize) writes the checksum as seven
+    # octal digits and a NUL where tarfile writes six, a NUL and a space (the same number), and ends
+    # the archive with two zero blocks where tarfile pads on to a 10240-byte record. With these two
+    # changes the bytes are RLtools' own (tests/px4).
+    data = bytearray(buf.getvalue()[: end + 2 * tarfile.BLOCKSIZE])
+    for at in headers:
+        data[at + 148 : at + 156] = b"%07o\0" % int(data[at + 148 : at + 154], 8)
+    return bytes(data)
 
 
 def sha256_hex(data: bytes) -> str:
