@@ -36,6 +36,7 @@ from raptor_files import (
 from quadpilot.runtime import rltools_tar as rt
 
 PX4_BLOB_ENV = "QUADPILOT_PX4_RAPTOR_BLOB"
+PX4_BLOB_SHA256 = "5327c83dc57f094ca1977a2533ebce318645be010e16b9354c96c337cd5c278b"  # px4-blob bc6683a9
 
 
 def built(include, posix: bool):
@@ -95,6 +96,7 @@ def test_px4s_shipped_policy_tar_is_what_our_writer_writes(harness):
     if not path:
         pytest.skip(f"set {PX4_BLOB_ENV} to PX4's src/modules/mc_raptor/blob/policy.tar (docs/px4.md)")
     blob = Path(path).read_bytes()
+    assert rt.sha256_hex(blob) == PX4_BLOB_SHA256, "not the policy.tar of rl-tools/px4-blob bc6683a9"
     p = rt.parse_policy_tar(blob)
     assert p.checkpoint_name == FOUNDATION_NAME
     assert rt.policy_tar_bytes(p.weights, p.example_in, p.example_out, p.checkpoint_name) == blob + bytes(1024)
