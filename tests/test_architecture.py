@@ -66,6 +66,16 @@ def test_every_import_between_packages_is_one_the_table_allows():
     assert not broken, "imports docs/architecture.md does not allow:\n" + "\n".join(broken)
 
 
+def test_every_import_the_table_allows_is_used():
+    """A permission no file uses is a door left open: the table says what the code does, no more."""
+    used: dict[str, set[str]] = {}
+    for path in sorted(SRC.rglob("*.py")):
+        if not (path.parent == SRC and path.name == "__init__.py"):
+            used.setdefault(package_of(path), set()).update(imports(path) - {package_of(path)})
+    unused = [f"{pkg} may import {target}" for pkg, may in allowed().items() for target in sorted(may - used[pkg])]
+    assert not unused, "the table allows imports no file makes (remove them):\n" + "\n".join(unused)
+
+
 # --- the size of the rooms --------------------------------------------------------------------
 
 MAX_LINES = 600
