@@ -234,7 +234,7 @@ class Commander(CommandHandlers):
         if handler is None:
             self.dropped[f"unexpected_{kind.lower()}"] += 1
         else:
-            getattr(self, handler)(msg)
+            handler(self, msg)
         out, self._out = self._out, []
         return out
 
@@ -483,21 +483,22 @@ class Commander(CommandHandlers):
             self.failsafe = None
 
     _HANDLERS = {
-        "HEARTBEAT": "_on_heartbeat",
-        "PING": "_on_ping",
-        "COMMAND_LONG": "_on_command",
-        "COMMAND_INT": "_on_command",
-        "SET_MODE": "_on_set_mode",
-        "PARAM_REQUEST_LIST": "_on_params",
-        "PARAM_REQUEST_READ": "_on_params",
-        "PARAM_SET": "_on_params",
-        "MISSION_COUNT": "_on_mission",
-        "MISSION_ITEM_INT": "_on_mission",
-        "MISSION_ITEM": "_on_mission",
-        "MISSION_REQUEST_LIST": "_on_mission",
-        "MISSION_REQUEST_INT": "_on_mission",
-        "MISSION_REQUEST": "_on_mission",
-        "MISSION_ACK": "_on_mission",
-        "MISSION_CLEAR_ALL": "_on_mission",
+        "HEARTBEAT": _on_heartbeat,
+        "PING": _on_ping,
+        "COMMAND_LONG": CommandHandlers._on_command,
+        "COMMAND_INT": CommandHandlers._on_command,
+        "SET_MODE": CommandHandlers._on_set_mode,
+        "PARAM_REQUEST_LIST": _on_params,
+        "PARAM_REQUEST_READ": _on_params,
+        "PARAM_SET": _on_params,
+        "MISSION_COUNT": _on_mission,
+        "MISSION_ITEM_INT": _on_mission,
+        "MISSION_ITEM": _on_mission,
+        "MISSION_REQUEST_LIST": _on_mission,
+        "MISSION_REQUEST_INT": _on_mission,
+        "MISSION_REQUEST": _on_mission,
+        "MISSION_ACK": _on_mission,
+        "MISSION_CLEAR_ALL": _on_mission,
     }
-    """Message type → method; types not here are counted as dropped (`unexpected_<type>`)."""
+    """Message type → handler, as the node dispatches (`node._Flight.HANDLERS`); types not here are
+    counted as dropped (`unexpected_<type>`)."""
