@@ -239,7 +239,7 @@ static uint32_t qp_calibrate(void)
 {{
     uint32_t n = {CALIBRATION_LOOPS}u, t0, t1;
     t0 = QP_SYST_CVR;
-    __asm__ volatile("1: subs %0, %0, #1\\n\\tbne 1b" : "+r"(n) : : "cc");
+    __asm__ volatile("1: subs %0, %0, 1\\n\\tbne 1b" : "+r"(n) : : "cc");
     t1 = QP_SYST_CVR;
     return (t0 - t1) & 0xFFFFFFu;
 }}
