@@ -130,6 +130,7 @@ def test_footprint_parts_add_up_and_the_counts_are_sane(built, model, target):
     elf = ctarget.elf_sections(image)
     for section in (".text", ".rodata", ".data", ".bss"):
         assert sum(parts[section].values()) == elf.get(section, 0), section
+        assert parts[section]["padding"] < 16, (section, parts[section])  # every input section was read from the map
     onnx_model, info = read_model(MODELS / model / "policy.onnx")
     weights = sum(a.size for a in cgen.generate(info, initializer_arrays(onnx_model)).network.arrays().values())
     assert 4 * weights <= parts[".rodata"]["policy"] <= 4 * weights + 64  # the weights, and a few constants

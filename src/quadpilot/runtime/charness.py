@@ -26,7 +26,8 @@ count (`CALIBRATION_INSTRUCTIONS`), the SysTick ticks per instruction being what
 from it.
 
 Exit status: 0 golden vectors matched (and qp_in.bin, if present, fully processed); 1 a golden
-vector did not match; 2 qp_out.bin could not be written; 3 qp_in.bin ends inside a record.
+vector did not match; 2 qp_out.bin could not be written; 3 qp_in.bin ends inside a record;
+99 a fault exception (HardFault and the other handlers).
 
 Lean by design: semihosting calls through BKPT 0xAB (ARM's "Semihosting for AArch32 and AArch64",
 SYS_OPEN, SYS_READ, SYS_WRITE, SYS_CLOSE, SYS_WRITE0, SYS_EXIT_EXTENDED), no printf, no heap;

@@ -274,8 +274,10 @@ def _part(file: str | None) -> str:
         return "harness"
     if name.startswith("libm"):
         return "libm"
-    if name.startswith("libc") or name.startswith("libg"):
-        return "libc" if name.startswith("libc") else "libgcc"
+    if name.startswith("libgcc"):
+        return "libgcc"
+    if name.startswith(("libc", "libg")):  # newlib-nano's libc_nano.a, libg_nano.a
+        return "libc"
     return "other"
 
 
@@ -299,15 +301,12 @@ def footprint(image: Image) -> dict:
             name = line.strip()
             pending = name if line.startswith(" .") and " " not in name else None
             continue
-        if m.group("file") is None and m.group("name") is None and pending is None:
-            continue
+        named = m.group("name") is not None or pending is not None  # not a symbol's address line
         size = int(m.group("size"), 16)
-        if size == 0 or (m.group("name") is None and pending is None):
-            pending = None
-            continue
-        part = "padding" if (m.group("name") or "") == "*fill*" else _part(m.group("file"))
-        sizes[current][part] = sizes[current].get(part, 0) + size
         pending = None
+        if named and size:
+            part = "padding" if m.group("name") == "*fill*" else _part(m.group("file"))
+            sizes[current][part] = sizes[current].get(part, 0) + size
     elf = elf_sections(image)
     for section, parts in sizes.items():
         padding = elf.get(section, 0) - sum(v for k, v in parts.items() if k != "padding")
