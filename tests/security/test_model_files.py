@@ -457,9 +457,11 @@ INJECTIONS = {"task": _inject_task, "source-sha256": _inject_sha, "initializer-n
 def test_metadata_strings_never_reach_generated_c(tmp_path, field):
     """A crafted file whose metadata carries C (a constructor that writes a marker file when the
     compiled library is loaded, before any golden vector is checked): the c backend and quad-export
-    --format c must refuse the file, or generate code that holds none of the text."""
+    --format c must refuse the file, or generate code (the kernel, and the bare-metal harness that
+    --target builds around it) that holds none of the text."""
     from quadpilot.export.c_export import c_from_onnx
     from quadpilot.runtime.cgen import generate, initializers
+    from quadpilot.runtime.charness import harness_source
 
     marker = tmp_path / "constructor_ran"
     model = load()
@@ -481,7 +483,7 @@ def test_metadata_strings_never_reach_generated_c(tmp_path, field):
     try:
         model_checked, info = read_model(path)
         code = generate(info, initializers(model_checked))
-        outputs += [code.header, code.source]
+        outputs += [code.header, code.source, harness_source(info, code.network), harness_source(info, code.network, 3)]
     except ModelContractError:
         pass
     for text in outputs:

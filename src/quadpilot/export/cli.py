@@ -10,7 +10,10 @@ edges of the training range.
 directory with policy.c (weights as static const float arrays, no heap, libm only) and policy.h
 (the entry point, the observation layout and the output convention). It is generated from the
 ONNX file exported first, and compiled with the system C compiler (if there is one) for the
-parity check.
+parity check. --target cortex-m4f|cortex-m7 also cross-compiles it with arm-none-eabi-gcc into a
+bare-metal image (DIR/policy.elf) that checks the model's golden vectors when it boots and exits
+through semihosting with status 0 only if they match; if qemu-system-arm is installed it is booted
+once (mps2-an386 for the M4F, mps2-an500 for the M7) and the result printed.
 
 Exit codes: 0 written and parity within tolerance; 1 the checkpoint cannot be used (malformed,
 truncated, not a quadpilot checkpoint), or the export or its parity check failed; 2 a bad flag
@@ -56,6 +59,8 @@ def _check_args(args) -> Path:
         check_output_path(out, "--output", directory=args.format == "c")
     except ValueError as e:
         raise _BadFlag(str(e)) from None
+    if args.target is not None and args.format != "c":
+        raise _BadFlag(f"--target {args.target} needs --format c (it cross-compiles the C)")
     if out.resolve() == ckpt.resolve():
         raise _BadFlag(f"--output {out} is the checkpoint itself; name another file")
     return out
@@ -78,6 +83,12 @@ def main(argv: list[str] | None = None) -> int:
         choices=("onnx", "c"),
         default="onnx",
         help="onnx: an ONNX file with metadata. c: C99 source and header for a microcontroller. Default: onnx",
+    )
+    p.add_argument(
+        "--target",
+        choices=("cortex-m4f", "cortex-m7"),
+        help="with --format c: also build a bare-metal image for this core (arm-none-eabi-gcc, hard float) that "
+        "checks the golden vectors at boot, and boot it in QEMU if qemu-system-arm is installed. Default: none",
     )
     p.add_argument(
         "--opset",
@@ -106,6 +117,14 @@ def main(argv: list[str] | None = None) -> int:
     except _BadFlag as e:
         print(f"quad-export: error: {e}", file=sys.stderr)
         return 2
+    if args.target is not None:
+        from quadpilot.runtime.ctarget import CC, CrossToolError, require_tool
+
+        try:
+            require_tool(CC)
+        except CrossToolError as e:
+            print(f"quad-export: error: --target {args.target}: {e}", file=sys.stderr)
+            return 1
     try:
         return _main_c(args, out) if args.format == "c" else _main_onnx(args, out)
     except Exception as e:  # one line, exit 1, for what the checks let through (see _failure)
@@ -184,7 +203,46 @@ def _main_c(args, out: Path) -> int:
             extra["c"] = policy
         except CCompilerError as e:
             print(f"quad-export: note: the C was written but not compiled here, so its parity is not checked: {e}")
-        return _report_parity(check_parity(args.checkpoint, onnx_path, args.parity_samples, extra_policies=extra))
+        status = _report_parity(check_parity(args.checkpoint, onnx_path, args.parity_samples, extra_policies=extra))
+    if args.target is not None and status == 0:
+        status = _cross_build(exported, out, args.target)
+    return status
+
+
+def _cross_build(exported, out: Path, target: str) -> int:
+    """--target: the bare-metal image, its footprint, and one boot in QEMU where it is installed."""
+    from quadpilot.runtime import ctarget
+
+    try:
+        image = ctarget.build_image(exported.code, exported.info, out, target)
+    except ctarget.CrossToolError as e:
+        print(f"quad-export: error: --target {target}: {e}", file=sys.stderr)
+        return 1
+    parts = ctarget.footprint(image)
+    flash = sum(sum(parts[s].values()) for s in (".text", ".rodata", ".ARM.exidx", ".data"))
+    policy = sum(parts[s].get("policy", 0) for s in (".text", ".rodata"))
+    ram = sum(sum(parts[s].values()) for s in (".data", ".bss"))
+    print(
+        f"built {image.elf} for the {image.target.core} ({' '.join(image.target.flags)}): flash {flash:,} B "
+        f"(policy.c {policy:,} B), static RAM {ram:,} B"
+    )
+    if ctarget.find_tool(ctarget.QEMU) is None:
+        print(f"note: {ctarget.QEMU} not found, the image was not booted here ({ctarget.APT_INSTALL})")
+        return 0
+    try:
+        run = ctarget.run_image(image)
+    except ctarget.CrossToolError as e:
+        print(f"quad-export: error: {e}", file=sys.stderr)
+        return 1
+    if run.status != 0:
+        print(
+            f"quad-export: error: the image exits with status {run.status} in QEMU {image.target.machine}: "
+            f"{run.console.strip()[:200]}",
+            file=sys.stderr,
+        )
+        return 1
+    print(f"booted in QEMU {image.target.machine}: golden vectors reproduced (exit status 0)")
+    return 0
 
 
 if __name__ == "__main__":

@@ -332,6 +332,18 @@ extern "C" {{
     return text
 
 
+def stages(net: Network) -> list[str]:
+    """The stages of one step in the order the code runs them, as `QP_PROBE(k)` closes stage k
+    (k = 1, 2, ...): normalisation, the recurrent cell, each dense layer, the command map."""
+    out = ["normalisation"] if net.norm is not None else []
+    if net.lstm is not None:
+        out.append(f"LSTM cell {net.obs_dim}+{net.hidden} -> 4x{net.hidden}")
+    for k, layer in enumerate(net.layers):
+        n_out, n_in = layer.weight.shape
+        out.append(f"layer {k} {n_in} -> {n_out}{' ' + layer.activation if layer.activation else ''}")
+    return [*out, "command map"]
+
+
 def _uses_tanh(net: Network) -> bool:
     """Whether the code calls qp_tanh (a tanh head is computed with expf, see the module doc)."""
     return net.recurrent or any(layer.activation == "tanh" for layer in net.layers[:-1])
@@ -464,6 +476,8 @@ def _source(info: ModelInfo, net: Network) -> str:
     body += [f"    float {n}[{w}];" for n, w in zip(names, widths, strict=True)]
     body.append("    int i, j;")
     x = "obs"
+    probe = iter(range(1, len(stages(net)) + 1))
+    body.append("    QP_PROBE(0);")
     if net.norm is not None:
         body += [
             "    /* observation normalisation */",
@@ -473,6 +487,7 @@ def _source(info: ModelInfo, net: Network) -> str:
             "    }",
         ]
         x = "x"
+        body.append(f"    QP_PROBE({next(probe)});")
     if net.recurrent:
         hs, g4 = net.hidden, 4 * net.hidden
         body += [
@@ -492,10 +507,12 @@ def _source(info: ModelInfo, net: Network) -> str:
             "        c[j] = forget_gate * c[j] + in_gate * cell;",
             "        h[j] = out_gate * qp_tanh(c[j]);",
             "    }",
+            f"    QP_PROBE({next(probe)});",
         ]
         x = "h"
     for k, layer in enumerate(net.layers):
         body += _dense(k, layer, x, names[k], head=net.squashed and k == len(net.layers) - 1)
+        body.append(f"    QP_PROBE({next(probe)});")
         x = names[k]
     if net.squashed:
         # the graph's form (export.onnx_export.DeployablePolicy): the min and max are comparisons
@@ -520,6 +537,7 @@ def _source(info: ModelInfo, net: Network) -> str:
             f"        motors[j] = {clamp('m', 'qp_command_lo', 'qp_command_hi')};",
             "    }",
         ]
+    body.append(f"    QP_PROBE({next(probe)});")
     if net.recurrent:
         signature = (
             f"void {STEP}(const float obs[restrict QP_OBS_DIM], float h[restrict QP_HIDDEN], "
@@ -550,6 +568,12 @@ def _source(info: ModelInfo, net: Network) -> str:
         f'#include "{HEADER_NAME}"',
         "",
         "#include <math.h>",
+        "",
+        "/* QP_PROBE(k): a hook after each stage of the step (k = 0 at entry; the stages are listed in",
+        " * cgen.stages), empty unless the build defines it: the emulator's per-stage instruction count. */",
+        "#ifndef QP_PROBE",
+        "#define QP_PROBE(stage)",
+        "#endif",
         "",
         *consts,
         "",
