@@ -117,7 +117,7 @@ def _fraction(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
-    p.add_argument("policy", nargs="?", type=Path, help=f"ONNX file from quad-export. Default: {SHIPPED_HOVER}")
+    p.add_argument("policy", nargs="?", type=Path, help=sitl_node.POLICY_HELP + f" Default: {SHIPPED_HOVER}")
     p.add_argument(
         "--episodes", type=_int_in(1, MAX_EPISODES), metavar="N", help="Default: 10 (--node-only, --start landed: 1)"
     )
@@ -363,7 +363,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes is None:
         args.episodes = 1 if args.node_only or sitl_node.commanded(args) else 10
     policy_path = args.policy if args.policy is not None else SHIPPED_HOVER
-    for path, what in ((policy_path, "an ONNX policy file from quad-export"), (args.key, "a signing key file")):
+    named = str(policy_path).startswith(sitl_node.RAPTOR_NAME)  # a policy the runtime knows by name (runtime.raptor)
+    for path, what in ((None if named else policy_path, "a policy file"), (args.key, "a signing key file")):
         if path is not None and (why := _check_input_file(path, what)) is not None:
             return _bad_flag(why)
     outputs = {"--json": args.json, "--plot": args.plot, "--video": args.video, "--tlog": args.tlog}
