@@ -1,0 +1,138 @@
+"""The RAPTOR policy's GRU step (`runtime.gru`) and its loading (`runtime.raptor`): the NumPy step
+and the ONNX graph run by ONNX Runtime reproduce the checkpoint's own example (what mc_raptor's
+test_policy replays before it flies) and RAPTOR's own package (`foundation_policy`, outside software)
+step for step, and agree with each other within 1e-5; a bad weight dict or checkpoint is refused in
+one line."""
+
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from quadpilot.runtime import ModelContractError, SafetyMonitor, load_policy
+from quadpilot.runtime.gru import GRU_KEYS, GruStep, OnnxGruStep, check_example, check_weights, weights_from_h5
+from quadpilot.runtime.raptor import FOUNDATION, foundation_checkpoint, load_raptor
+
+
+def _package():
+    try:
+        import foundation_policy
+    except ImportError:
+        if os.environ.get("CI"):
+            pytest.fail('foundation-policy is not installed: the dev extra installs it (pip install -e ".[dev]")')
+        pytest.skip("needs the foundation-policy package: pip install foundation-policy")
+    return foundation_policy
+
+
+@pytest.fixture(scope="module")
+def checkpoint():
+    _package()
+    return weights_from_h5(foundation_checkpoint())
+
+
+def test_the_checkpoint_has_blob_policy_h_s_shape(checkpoint):
+    weights, example = checkpoint
+    assert {k: v.shape for k, v in weights.items()} == GRU_KEYS
+    assert sum(v.size for v in weights.values()) == 2084
+    assert example["input"].shape == (500, 2, 22) and example["output"].shape == (500, 2, 4)
+
+
+@pytest.mark.parametrize("make", [GruStep, OnnxGruStep], ids=["numpy", "onnxruntime"])
+def test_each_step_reproduces_the_checkpoints_example(checkpoint, make):
+    weights, example = checkpoint
+    assert check_example(make(weights), example) < 1e-6
+
+
+def test_onnx_and_numpy_agree_within_1e_5_and_with_raptors_own_package(checkpoint):
+    weights, _ = checkpoint
+    ours, onnx = GruStep(weights), OnnxGruStep(weights)
+    theirs = _package().Raptor()
+    theirs.reset()
+    rng = np.random.default_rng(0)
+    h_ours = h_onnx = ours.initial_state.copy()
+    worst_onnx = worst_package = 0.0
+    for t in range(300):
+        x = (rng.normal(size=22) * (0.5 if t % 50 else 3.0)).astype(np.float32)
+        a, h_ours = ours(x, h_ours)
+        b, h_onnx = onnx(x, h_onnx)
+        c = theirs.evaluate_step(x[None])[0]
+        worst_onnx = max(worst_onnx, np.abs(a - b).max(), np.abs(h_ours - h_onnx).max())
+        worst_package = max(worst_package, np.abs(a - c).max())
+    assert worst_onnx <= 1e-5 and worst_package <= 1e-5
+
+
+def test_the_hidden_state_is_explicit_and_reset_to_the_initial_state(checkpoint):
+    weights, _ = checkpoint
+    step = GruStep(weights)
+    x = np.full(22, 0.3, np.float32)
+    a1, h1 = step(x, step.initial_state)
+    a2, _ = step(x, h1)
+    a3, _ = step(x, step.initial_state)
+    assert not np.allclose(a1, a2) and np.array_equal(a1, a3)
+    policy = load_raptor(FOUNDATION)
+    first = policy.act(np.r_[x[:18], np.zeros(4, np.float32)])
+    policy.act(np.r_[x[:18], np.zeros(4, np.float32)])
+    policy.reset()
+    assert np.array_equal(policy.act(np.r_[x[:18], np.zeros(4, np.float32)]), first)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "onnxruntime"])
+def test_load_policy_knows_the_foundation_policy_and_its_checkpoint_file(backend):
+    _package()
+    for name in (FOUNDATION, foundation_checkpoint()):
+        policy = load_policy(name, backend)
+        assert policy.info.layout.name == "px4-raptor" and policy.backend == backend
+        assert policy.verify_golden() <= 1e-5
+        motors = SafetyMonitor(policy).act(np.r_[np.zeros(3), np.eye(3).ravel(), np.zeros(10)].astype(np.float32))
+        assert motors.shape == (4,) and ((0 <= motors) & (motors <= 1)).all()
+
+
+def test_the_c_backend_and_unknown_names_are_refused_in_one_line():
+    with pytest.raises(ValueError, match="numpy or onnxruntime backend"):
+        load_policy(FOUNDATION, "c")
+    with pytest.raises(ModelContractError, match="unknown RAPTOR policy name"):
+        load_policy("raptor:nonesuch", "numpy")
+
+
+def test_bad_weight_dicts_are_refused(checkpoint):
+    weights, _ = checkpoint
+    for key, bad, why in [
+        ("layers/1/weights_hidden", np.zeros((16, 48), np.float32), "shape"),
+        ("layers/0/biases", np.full(16, np.nan, np.float32), "non-finite"),
+        ("layers/2/biases", "four", "not an array of numbers"),
+    ]:
+        with pytest.raises(ModelContractError, match=why):
+            check_weights({**weights, key: bad})
+    with pytest.raises(ModelContractError, match="no 'layers/0/weights'"):
+        check_weights({k: v for k, v in weights.items() if k != "layers/0/weights"})
+    with pytest.raises(ModelContractError, match="unexpected keys"):
+        check_weights({**weights, "layers/3/weights": np.zeros(1)})
+
+
+def test_a_checkpoint_that_is_not_raptors_shape_or_not_its_example_is_refused(tmp_path, checkpoint):
+    weights, example = checkpoint
+    junk = tmp_path / "junk.h5"
+    junk.write_bytes(b"not hdf5 at all")
+    with pytest.raises(ModelContractError, match="not an RLtools GRU checkpoint") as e:
+        load_policy(junk, "numpy")
+    assert "\n" not in str(e.value)
+
+    def write(path, tanh_output=False, scale=1.0):
+        with h5py.File(path, "w") as f:
+            layers = f.create_group("actor/layers")
+            for key, value in weights.items():
+                layers.create_dataset(key.split("/", 1)[1] + "/parameters", data=value * scale)
+            layers["0"].attrs["activation_function"] = "RELU"
+            layers["2"].attrs["activation_function"] = "TANH" if tanh_output else "IDENTITY"
+            f.create_dataset("example/input", data=example["input"])
+            f.create_dataset("example/output", data=example["output"])
+
+    write(tmp_path / "same.h5")
+    assert load_policy(tmp_path / "same.h5", "numpy").info.layout.name == "px4-raptor"
+    write(tmp_path / "tanh.h5", tanh_output=True)
+    with pytest.raises(ModelContractError, match="activation 'TANH'"):
+        load_policy(tmp_path / "tanh.h5", "numpy")
+    write(tmp_path / "other.h5", scale=1.01)
+    with pytest.raises(ModelContractError, match="example is not reproduced"):
+        load_policy(tmp_path / "other.h5", "numpy")
