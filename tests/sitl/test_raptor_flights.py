@@ -2,7 +2,7 @@
 code (`core.px4_raptor`, `runtime.raptor`) by `quad-sitl raptor:foundation`: in our simulator at
 100 Hz (random starts, the project's success rule: within 5 cm and holding the heading) and at
 250 Hz (the GRU advancing on every second step, as mc_raptor does at IMU_GYRO_RATEMAX 250), and in
-RotorPy's PX4 simulator with PX4's SIH quad-X airframe. Short flights; the figures of longer ones
+RotorPy's PX4 simulator with PX4's SIH quad-X airframe at 250 Hz. Short flights; the figures of longer ones
 are benchmarks/raptor_flights.py's (docs/bench/raptor_flights.json)."""
 
 import json
@@ -80,8 +80,10 @@ def test_rotorpys_px4_simulator_with_sih_quad_x(tmp_path):
     spec = importlib.util.spec_from_file_location("rotorpy_flight", HERE / "test_rotorpy.py")
     t = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(t)
+    # 250 Hz: on a loaded host RotorPy may fly a step on the previous answer (its 10 ms wait missed), a lag
+    # of 4 ms here and of 10 ms at 100 Hz (benchmarks/raptor_flights.py records both)
     case = t.RotorPyFlight(
-        Path("raptor:foundation"), 100, 1, max_error_m=HOVER_BAR_M, duration_s=4.0, target=(0.4, -0.3, 0.3)
+        Path("raptor:foundation"), 250, 2, max_error_m=HOVER_BAR_M, duration_s=4.0, target=(0.4, -0.3, 0.3)
     )
     rotorpy, _, _, node = t.fly(case, tmp_path)
     assert node.returncode == 0, node.stderr
