@@ -136,3 +136,21 @@ def test_a_checkpoint_that_is_not_raptors_shape_or_not_its_example_is_refused(tm
     write(tmp_path / "other.h5", scale=1.01)
     with pytest.raises(ModelContractError, match="example is not reproduced"):
         load_policy(tmp_path / "other.h5", "numpy")
+
+
+@pytest.mark.parametrize(("step_us", "force_sync"), [(4_000, 2), (10_000, 1), (2_000, 5), (20_000, 0)])
+def test_the_gyro_rate_is_measured_from_the_first_two_steps(step_us, force_sync):
+    """IMU_GYRO_RATEMAX / 100 from the simulator's step: at 250 Hz the GRU state advances on every
+    second call, the calls between leave it as it was; a reset measures again."""
+    _package()
+    policy = load_raptor(FOUNDATION)
+    state = [0.1, -0.2, 2.05, 0.1, 0.0, -0.1, 0.02, -0.01, 0.3, 0.01, 0.02, -0.03]
+    states = []
+    for k in range(4):
+        policy.act(policy.own_observation(state, [0.0, 0.0, 2.0], None, 0.3, 1_000_000 + k * step_us))
+        states.append(policy.executor.state.copy())
+    assert policy.executor.force_sync == force_sync
+    advanced = [not np.array_equal(a, b) for a, b in zip(states, states[1:], strict=False)]
+    assert advanced == [force_sync <= 1 or (k + 1) % force_sync == 0 for k in range(3)]
+    policy.reset()
+    assert policy.step_s is None and np.array_equal(policy.executor.state, policy.executor.initial_state)

@@ -104,9 +104,11 @@ class RaptorPolicy(Policy):
         self.reset()
 
     def reset(self) -> None:
-        """Raptor::reset: the GRU state to its initial value, the previous action to 0."""
+        """Raptor::reset: the GRU state to its initial value, the previous action to 0; the gyro rate
+        is measured again unless it was given."""
         self.executor.reset()
         self._last_us = None
+        self.step_s = None  # measured again (the node resets the policy for every flight)
         if self.gyro_rate_hz is not None:
             self.executor.force_sync = px4_raptor.force_sync_native(self.gyro_rate_hz)
             self.step_s = 1.0 / self.gyro_rate_hz
