@@ -4,6 +4,7 @@ test_policy replays before it flies) and RAPTOR's own package (`foundation_polic
 step for step, and agree with each other within 1e-5; a bad weight dict or checkpoint is refused in
 one line."""
 
+import itertools
 import os
 
 import h5py
@@ -150,7 +151,31 @@ def test_the_gyro_rate_is_measured_from_the_first_two_steps(step_us, force_sync)
         policy.act(policy.own_observation(state, [0.0, 0.0, 2.0], None, 0.3, 1_000_000 + k * step_us))
         states.append(policy.executor.state.copy())
     assert policy.executor.force_sync == force_sync
-    advanced = [not np.array_equal(a, b) for a, b in zip(states, states[1:], strict=False)]
+    advanced = [not np.array_equal(a, b) for a, b in itertools.pairwise(states)]
     assert advanced == [force_sync <= 1 or (k + 1) % force_sync == 0 for k in range(3)]
     policy.reset()
     assert policy.step_s is None and np.array_equal(policy.executor.state, policy.executor.initial_state)
+
+
+def test_the_safety_monitor_checks_the_previous_action_and_hands_over_to_a_fallback_that_reads_it():
+    """In range, the policy flies; a previous action outside [−1, 1] is a bad observation (blind);
+    beyond the envelope the fallback flies on the hover-layout form of the observation."""
+    from quadpilot.core.px4_raptor import fallback_observation
+    from quadpilot.runtime.fallback import FallbackController
+
+    _package()
+    policy = load_raptor(FOUNDATION)
+    monitor = SafetyMonitor(policy)
+    level = np.r_[0.1, -0.2, 0.05, np.eye(3).ravel(), 0.1, 0.0, -0.1, 0.01, 0.02, -0.03].astype(np.float32)
+    monitor.act(np.r_[level, 0.9, -0.9, 0.2, 1.0].astype(np.float32))
+    assert monitor.source == "policy" and not monitor.events
+    monitor.act(np.r_[level, 1.5, 0.0, 0.0, 0.0].astype(np.float32))
+    assert monitor.events["obs_out_of_range"] == 1
+    monitor.reset()
+    c, s = np.cos(np.radians(88.0)), np.sin(np.radians(88.0))  # rolled 88°: beyond the 85° envelope
+    rolled = np.array([[1, 0, 0], [0, c, -s], [0, s, c]], np.float32).ravel()
+    obs = np.r_[0.1, -0.2, 0.05, rolled, 0.1, 0.0, -0.1, 0.01, 0.02, -0.03, np.zeros(4)].astype(np.float32)
+    cmd = monitor.act(obs)
+    want = FallbackController(policy.info.vehicle, policy.info.control_period_s, heading_frame=True)
+    assert monitor.events["out_of_envelope"] == 1 and monitor.source == "fallback"
+    np.testing.assert_array_equal(cmd, np.clip(want.act(fallback_observation(obs)), 0.0, 1.0))
