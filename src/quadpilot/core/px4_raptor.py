@@ -89,7 +89,10 @@ PX4_RAPTOR_LAYOUT = ObsLayout(
     heading_frame=True,
 )
 """The contract's observation, in the order RAPTOR takes it (its checkpoint's meta says
-Position.OrientationRotationMatrix.LinearVelocity.AngularVelocityDelayed(0).ActionHistory(1))."""
+Position.OrientationRotationMatrix.LinearVelocity.AngularVelocityDelayed(0).ActionHistory(1)).
+Not in `core.observation.LAYOUTS`, the layouts an exported model file may declare: the node builds
+those with `build_observation`, and this one only a policy that carries the contract builds
+(`runtime.raptor`)."""
 
 
 def _rz_rows(yaw: float) -> tuple[float, float]:
