@@ -179,3 +179,30 @@ def test_the_safety_monitor_checks_the_previous_action_and_hands_over_to_a_fallb
     want = FallbackController(policy.info.vehicle, policy.info.control_period_s, heading_frame=True)
     assert monitor.events["out_of_envelope"] == 1 and monitor.source == "fallback"
     np.testing.assert_array_equal(cmd, np.clip(want.act(fallback_observation(obs)), 0.0, 1.0))
+
+
+def test_a_checkpoint_is_checked_shape_by_shape_before_anything_is_read(tmp_path, checkpoint):
+    """A dataset of the wrong shape (here a 10⁸-row example, which a reader that reads first would
+    allocate) or a checkpoint without an example is refused in one line, naming what was wrong."""
+    weights, example = checkpoint
+
+    def write(path, big_example=False, no_example=False):
+        with h5py.File(path, "w") as f:
+            layers = f.create_group("actor/layers")
+            for key, value in weights.items():
+                layers.create_dataset(key.split("/", 1)[1] + "/parameters", data=value)
+            layers["0"].attrs["activation_function"] = "RELU"
+            layers["2"].attrs["activation_function"] = "IDENTITY"
+            if big_example:  # declared, never written: HDF5 stores nothing for it
+                f.create_dataset("example/input", shape=(100_000_000, 2, 22), dtype="f4")
+                f.create_dataset("example/output", shape=(100_000_000, 2, 4), dtype="f4")
+            elif not no_example:
+                f.create_dataset("example/input", data=example["input"])
+                f.create_dataset("example/output", data=example["output"])
+
+    write(tmp_path / "big.h5", big_example=True)
+    with pytest.raises(ModelContractError, match=r"input has shape \(100000000, 2, 22\)"):
+        load_policy(tmp_path / "big.h5", "numpy")
+    write(tmp_path / "none.h5", no_example=True)
+    with pytest.raises(ModelContractError, match="no input/output example to replay"):
+        load_policy(tmp_path / "none.h5", "numpy")

@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 
-from .contract import ModelContractError, quote
+from .contract import ModelContractError, one_line, quote
 
 HIDDEN = 16
 OBS_DIM = 22
@@ -191,14 +191,32 @@ class OnnxGruStep:
         return a[0], h_out[0]
 
 
+MAX_EXAMPLE_STEPS = 100_000
+"""Most example rows (steps × sequences) a checkpoint may carry (RAPTOR's: 1,000)."""
+
+
+def _example_shape(shape: tuple, width: int) -> bool:
+    return len(shape) == 3 and shape[2] == width and shape[0] * shape[1] <= MAX_EXAMPLE_STEPS
+
+
 def weights_from_h5(path) -> tuple[dict, dict]:
     """(weights, example) from an RLtools HDF5 checkpoint of this shape: the dict above, and the
     example {"input": (T, B, 22), "output": (T, B, 4)} it carries (empty arrays if none).
-    ModelContractError, one line, for a file that is not such a checkpoint."""
+    ModelContractError, one line, for a file that is not such a checkpoint. Every dataset's shape is
+    checked before it is read, so a file cannot make this allocate more than the shapes above."""
     try:
         import h5py
     except ImportError:
         raise ModelContractError(f"{path}: reading an RLtools checkpoint needs h5py: pip install h5py") from None
+
+    def read(node, name: str, shapes) -> np.ndarray:
+        ds = node.get(name)
+        if not isinstance(ds, h5py.Dataset):
+            raise ModelContractError(f"{path}: no dataset {name!r}")
+        if not shapes(ds.shape):
+            raise ModelContractError(f"{path}: {name} has shape {ds.shape}, not what blob/policy.h's shape needs")
+        return np.asarray(ds[()], np.float32)
+
     try:
         with h5py.File(path, "r") as f:
             layers = f["actor"]["layers"]
@@ -209,15 +227,20 @@ def weights_from_h5(path) -> tuple[dict, dict]:
                     raise ModelContractError(
                         f"{path}: actor/{key} has activation {quote(got)}; blob/policy.h's shape needs {name}"
                     )
-            weights = {key: layers[key.split("/", 1)[1]]["parameters"][()] for key in GRU_KEYS}
+            weights = {
+                key: read(layers, key.split("/", 1)[1] + "/parameters", lambda s, w=shape: s in (w, (1, *w)))
+                for key, shape in GRU_KEYS.items()
+            }
             example = {"input": np.zeros((0, 1, OBS_DIM), np.float32)}
             example["output"] = np.zeros((0, 1, ACTION_DIM), np.float32)
             if "example" in f:
-                example = {k: np.asarray(f["example"][k][()], np.float32) for k in ("input", "output")}
+                for k, n in (("input", OBS_DIM), ("output", ACTION_DIM)):
+                    example[k] = read(f["example"], k, lambda s, n=n: _example_shape(s, n))
     except ModelContractError:
         raise
-    except (OSError, KeyError, TypeError, ValueError) as e:
-        raise ModelContractError(f"{path}: not an RLtools GRU checkpoint of blob/policy.h's shape ({e})") from None
+    except (OSError, KeyError, TypeError, ValueError, AttributeError) as e:
+        why = one_line(e, 120)
+        raise ModelContractError(f"{path}: not an RLtools GRU checkpoint of blob/policy.h's shape ({why})") from None
     return check_weights(weights, str(path)), example
 
 

@@ -21,6 +21,7 @@ the observation in the hover layout (`core.px4_raptor.fallback_observation`).
 from __future__ import annotations
 
 import hashlib
+import math
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +66,8 @@ def load_raptor(path, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE) ->
     weights, example = weights_from_h5(file)
     step = GruStep(weights) if backend == "numpy" else OnnxGruStep(weights)
     diff = check_example(step, example)
+    if math.isnan(diff):
+        raise ModelContractError(f"{file}: no input/output example to replay (mc_raptor's test_policy needs one)")
     if not diff < EXAMPLE_TOLERANCE:
         raise ModelContractError(
             f"{file}: the checkpoint's example is not reproduced (mean abs difference {diff:.3g}; "
