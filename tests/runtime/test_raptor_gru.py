@@ -206,3 +206,20 @@ def test_a_checkpoint_is_checked_shape_by_shape_before_anything_is_read(tmp_path
     write(tmp_path / "none.h5", no_example=True)
     with pytest.raises(ModelContractError, match="no input/output example to replay"):
         load_policy(tmp_path / "none.h5", "numpy")
+
+
+def test_a_plain_weight_dict_from_any_reader_makes_the_same_policy(checkpoint):
+    """What an RLtools policy.tar reader would hand over: named float32 arrays (dense biases as RLtools
+    stores them, (1, n)) and the example; the policy flies the same commands as the .h5's."""
+    from quadpilot.runtime.raptor import raptor_from_weights
+
+    weights, example = checkpoint
+    plain = {
+        k: (v[None] if k.endswith("/biases") and k.startswith(("layers/0", "layers/2")) else v)
+        for k, v in weights.items()
+    }
+    policy = raptor_from_weights(plain, example, "plain dict", "0" * 64)
+    reference = load_raptor(FOUNDATION)
+    for t in range(5):
+        obs = example["input"][t, 1]
+        np.testing.assert_array_equal(policy.act(obs), reference.act(obs))

@@ -55,7 +55,8 @@ def foundation_checkpoint() -> Path:
 
 
 def load_raptor(path, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE) -> RaptorPolicy:
-    """A checked RAPTOR policy (see the module docstring); ModelContractError, one line, if not."""
+    """A checked RAPTOR policy from `raptor:foundation` or an RLtools .h5 checkpoint (see the module
+    docstring); ModelContractError, one line, if not."""
     if backend not in RAPTOR_BACKENDS:
         raise ValueError(f"a RAPTOR policy runs on the {' or '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
     if str(path).startswith("raptor:") and str(path) != FOUNDATION:
@@ -64,29 +65,41 @@ def load_raptor(path, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE) ->
     if not file.is_file():
         raise ModelContractError(f"{file}: no such checkpoint file")
     weights, example = weights_from_h5(file)
+    sha256 = hashlib.sha256(file.read_bytes()).hexdigest()
+    return raptor_from_weights(weights, example, str(path), sha256, backend, vehicle)
+
+
+def raptor_from_weights(
+    weights: dict, example: dict, name: str, sha256: str, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE
+) -> RaptorPolicy:
+    """A checked RAPTOR policy from the weight dict (`gru.GRU_KEYS`) and the checkpoint's example
+    {"input": (T, B, 22), "output": (T, B, 4)}, whatever read them (an RLtools policy.tar reader
+    can feed this); `name` labels it, `sha256` is its source's digest."""
+    if backend not in RAPTOR_BACKENDS:
+        raise ValueError(f"a RAPTOR policy runs on the {' or '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
     step = GruStep(weights) if backend == "numpy" else OnnxGruStep(weights)
     diff = check_example(step, example)
     if math.isnan(diff):
-        raise ModelContractError(f"{file}: no input/output example to replay (mc_raptor's test_policy needs one)")
+        raise ModelContractError(f"{name}: no input/output example to replay (mc_raptor's test_policy needs one)")
     if not diff < EXAMPLE_TOLERANCE:
         raise ModelContractError(
-            f"{file}: the checkpoint's example is not reproduced (mean abs difference {diff:.3g}; "
+            f"{name}: the checkpoint's example is not reproduced (mean abs difference {diff:.3g}; "
             f"mc_raptor refuses above {EXAMPLE_TOLERANCE:g})"
         )
     xs, ys = example["input"][:GOLDEN_STEPS, 0], example["output"][:GOLDEN_STEPS, 0]
     info = ModelInfo(
-        path=str(path),
+        path=name,
         layout=px4_raptor.PX4_RAPTOR_LAYOUT,
         task="hover",
         control_period_s=1.0 / px4_raptor.TRAINING_RATE_HZ,
         vehicle=get_preset(vehicle),
         training_steps=0,
-        source_sha256=hashlib.sha256(file.read_bytes()).hexdigest(),
+        source_sha256=sha256,
         action_meaning=ACTION_MEANING,
         architecture={"kind": "gru", "hidden": 16, "layers": ["dense 22-16 relu", "gru 16", "dense 16-4"]},
         envelope={"max_distance_m": 1e3, "max_tilt_deg": 85.0},
         golden_obs=np.ascontiguousarray(xs),
-        golden_action=np.stack([px4_raptor.motor_commands(y) for y in ys]) if len(ys) else np.zeros((0, 4), np.float32),
+        golden_action=np.stack([px4_raptor.motor_commands(y) for y in ys]),
     )
     return RaptorPolicy(info, step, backend)
 
