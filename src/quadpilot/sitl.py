@@ -364,7 +364,7 @@ def main(argv: list[str] | None = None) -> int:
         args.episodes = 1 if args.node_only or sitl_node.commanded(args) else 10
     policy_path = args.policy if args.policy is not None else SHIPPED_HOVER
     named = str(policy_path).startswith(sitl_node.RAPTOR_NAME)  # a policy the runtime knows by name (runtime.raptor)
-    for path, what in ((None if named else policy_path, "a policy file"), (args.key, "a signing key file")):
+    for path, what in ((None if named else policy_path, sitl_node.POLICY_FILE), (args.key, "a signing key file")):
         if path is not None and (why := _check_input_file(path, what)) is not None:
             return _bad_flag(why)
     outputs = {"--json": args.json, "--plot": args.plot, "--video": args.video, "--tlog": args.tlog}

@@ -40,6 +40,7 @@ POLICY_HELP = (
     "ONNX file from quad-export, or raptor:foundation (the RAPTOR policy PX4's mc_raptor flies, flown through its "
     "contract, runtime.raptor; or an RLtools .h5 checkpoint of its shape)."
 )
+POLICY_FILE = "an ONNX policy file from quad-export, or an RLtools .h5 checkpoint"
 RAPTOR_NAME = "raptor:"
 """A policy argument starting so is a name the runtime knows (runtime.raptor), not a file."""
 MAX_FALLBACK_FRACTION = 0.10
