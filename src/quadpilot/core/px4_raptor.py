@@ -24,7 +24,8 @@ order the policy was trained in (front-right, back-right, back-left, front-left)
 order (front-right, back-left, front-left, back-right): PX4 output i takes policy output
 `MOTOR_FROM_POLICY[i]` (`motor_commands`). PX4 calls that value thrust-normalised; what it means to a
 rotor is the simulator's business: the RAPTOR policy was trained in RLtools' L2F simulator, where it
-sets the rotor speed between the vehicle's minimum and maximum linearly (thrust ∝ speed²), and our
+sets the rotor speed setpoint between the vehicle's action_limit.min and .max linearly (the thrust a
+quadratic in the speed, rotor_thrust_coefficients), and our
 simulator and RotorPy's PX4 simulator read HIL_ACTUATOR_CONTROLS the same way (rotor speed =
 command · ω_max; ω_min = 0 on the vehicles flown), so the command goes to them unchanged.
 
