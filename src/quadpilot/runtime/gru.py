@@ -33,11 +33,11 @@ import math
 
 import numpy as np
 
+from quadpilot.core.px4_raptor import ACTION_DIM, OBS_DIM
+
 from .contract import ModelContractError, one_line, quote
 
 HIDDEN = 16
-OBS_DIM = 22
-ACTION_DIM = 4
 GRU_KEYS = {
     "layers/0/weights": (HIDDEN, OBS_DIM),
     "layers/0/biases": (HIDDEN,),
