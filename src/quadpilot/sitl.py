@@ -118,7 +118,7 @@ def _fraction(text: str) -> float:
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument(
-        "policy", nargs="?", type=Path, help="ONNX file from quad-export. Default: the shipped hover model (--model)"
+        "policy", nargs="?", type=Path, help=sitl_node.POLICY_HELP + " Default: the shipped hover model (--model)"
     )
     p.add_argument("--model", metavar="NAME", help="Fly the shipped model NAME (--list-models). Default: hover")
     p.add_argument("--list-models", action="store_true", help="List the shipped models, what each is for, and exit.")
@@ -385,7 +385,8 @@ def main(argv: list[str] | None = None) -> int:
     elif args.model is not None:
         return _bad_flag(f"give a policy file or --model, not both ({args.policy} and --model {args.model})")
     policy_path = args.policy
-    for path, what in ((policy_path, "an ONNX policy file from quad-export"), (args.key, "a signing key file")):
+    named = str(policy_path).startswith(sitl_node.RAPTOR_NAME)  # a policy the runtime knows by name (runtime.raptor)
+    for path, what in ((None if named else policy_path, sitl_node.POLICY_FILE), (args.key, "a signing key file")):
         if path is not None and (why := _check_input_file(path, what)) is not None:
             return _bad_flag(why)
     outputs = {"--json": args.json, "--plot": args.plot, "--video": args.video, "--tlog": args.tlog}

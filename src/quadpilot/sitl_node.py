@@ -36,6 +36,13 @@ import numpy as np
 from quadpilot.console import atomic_output, atomic_write, float_in
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, MAX_SPIN_US
 
+POLICY_HELP = (
+    "ONNX file from quad-export, or raptor:foundation (the RAPTOR policy PX4's mc_raptor flies, flown through its "
+    "contract, runtime.raptor; or an RLtools .h5 checkpoint of its shape)."
+)
+POLICY_FILE = "an ONNX policy file from quad-export, or an RLtools .h5 checkpoint"
+RAPTOR_NAME = "raptor:"
+"""A policy argument starting so is a name the runtime knows (runtime.raptor), not a file."""
 MAX_FALLBACK_FRACTION = 0.10
 """More than this share of the steps flown by the fallback (or blind) fails the run (exit 1)."""
 MAX_TARGET_M = 1000.0

@@ -344,6 +344,7 @@ class _Flight:
         # yaw, else the heading of the first valid state (`core.mission`'s default)
         self.heading_frame = monitor.policy.info.layout.heading_frame
         self.heading: float | None = None
+        self.own_observation = monitor.policy.own_observation  # None, or a contract's (run every step)
         airborne = commander is None or cfg.start == "air"
         self.held_armed = airborne  # the armed flag sent with `held`: the commander's, else always armed
         self.motors_on = airborne  # the motors were on at the last tick (or are at the start)
@@ -441,7 +442,8 @@ class _Flight:
         commander = self.commander
         if commander is not None and self.gcs is not None:  # the ground station's commands, before the setpoint
             self._log_texts(self.gcs.serve(t_us * 1e-6), t_us * 1e-6)
-        tick = not blind and (self.next_tick_us is None or t_us >= self.next_tick_us - TICK_TOLERANCE_US)
+        every_step = self.own_observation is not None  # a contract of its own: every step (see policy.Policy)
+        tick = not blind and (every_step or self.next_tick_us is None or t_us >= self.next_tick_us - TICK_TOLERANCE_US)
         if blind and not self.motors_on:
             cmd = self.held = IDLE  # motors off stay off: a dropped state is no reason to spin them
             self.held_source = "idle"
@@ -480,7 +482,8 @@ class _Flight:
                     self._fixed_values = tp
                 tv = None if target_vel is None else np.asarray(target_vel, np.float64).tolist()
                 # `core.observation.build_observation` (the function training used) for one state, the same bits
-                obs = observe(s, tp, tv, heading)
+                own = self.own_observation
+                obs = observe(s, tp, tv, heading) if own is None else own(s, tp, tv, heading, t_us)
                 cmd = self.held = monitor.act(obs)
                 self.held_source = monitor.source
             else:  # disarmed, or idle on the ground: motors off, the policy not run

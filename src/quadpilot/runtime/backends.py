@@ -311,6 +311,10 @@ def load_policy(path: str | os.PathLike, backend: str = "onnxruntime") -> Policy
     ValueError) when there is no working C compiler."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    if str(path).startswith("raptor:") or str(path).lower().endswith(".h5"):  # PX4 mc_raptor's policy
+        from .raptor import load_raptor
+
+        return load_raptor(path, backend)
     model, info = read_model(path)
     weights = initializer_arrays(model, info.path)
     if backend == "onnxruntime":

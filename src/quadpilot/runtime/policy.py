@@ -34,6 +34,11 @@ class Policy:
     """Batch-1 policy over raw observations. Subclasses implement `_act(x)` on a float32 (obs_dim,)."""
 
     backend = "?"
+    own_observation = None
+    """None: the node builds the observation (`observation_one.observe`) and runs the policy at its
+    control period. A policy that flies through a contract of its own (`raptor.RaptorPolicy`, PX4
+    mc_raptor's) sets a method (state, target, target_vel, heading, t_us) → observation, and the node
+    calls it and the policy at every simulator step, as mc_raptor runs on every gyro update."""
 
     def __init__(self, info: ModelInfo) -> None:
         self.info = info

@@ -56,10 +56,10 @@ from pathlib import Path
 import numpy as np
 
 from quadpilot import console
+from quadpilot.core.px4_raptor import ACTION_DIM, OBS_DIM
 
-OBS_DIM = 22
-HIDDEN = 16
-ACTION_DIM = 4
+from .gru import HIDDEN
+
 EXAMPLE_STEPS = 500
 EXAMPLE_BATCH = 2
 # mc_raptor's own check (mc_raptor.hpp, TEST_BATCH_SIZE_ACTUAL and TEST_SEQUENCE_LENGTH_ACTUAL) and bar

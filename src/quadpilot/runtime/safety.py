@@ -60,6 +60,8 @@ class ObservationLimits:
     """rad/s, twice a 2000 °/s gyro's full scale (the usual MEMS range)."""
     target_vel: float = 100.0
     """m/s."""
+    prev_action: float = 1.0 + 1e-3
+    """The previous action of the px4-raptor contract: clamped to [−1, 1] (a mean of such values)."""
 
     def vector(self, layout) -> np.ndarray:
         """(obs_dim,) float64 bound per value, in the layout's order."""
@@ -79,6 +81,9 @@ class SafetyMonitor:
         self._policy_act = policy._act
         self._observation = policy.observation
         info = policy.info
+        make = getattr(policy, "make_fallback", None)  # a policy with an observation of its own brings its fallback
+        if fallback is None:
+            fallback = make() if make is not None else None
         self.fallback = (
             fallback
             if fallback is not None

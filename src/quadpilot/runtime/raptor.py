@@ -1,0 +1,173 @@
+"""The RAPTOR foundation policy (Eschmann et al. 2025, arXiv 2509.11481), the policy PX4's mc_raptor
+module flies, run through the `px4-raptor` contract (`core.px4_raptor`) by our node.
+
+    policy = load_raptor("raptor:foundation", backend="numpy")   # or a path to an RLtools .h5 checkpoint
+    monitor = SafetyMonitor(policy)
+
+How a user selects it: `quad-sitl raptor:foundation [--vehicle NAME]` (or `quad-sitl CHECKPOINT.h5`);
+`raptor:foundation` is the checkpoint the foundation-policy package ships (the same weights and
+checkpoint name, logs/2025-04-19_16-16-17, as PX4's src/modules/mc_raptor/blob/policy.h). The
+weights are checked (`gru.check_weights`), and the checkpoint's own example is replayed before it
+flies, as mc_raptor's test_policy does (mean absolute difference below 1e-5, or refused).
+
+In the node (`runtime.node`) the policy builds its own observation from the state
+(`own_observation`) and runs at every simulator step, as mc_raptor runs on every gyro update; its
+executor (`core.px4_raptor.Executor`) advances the GRU state on 100 Hz steps: every
+IMU_GYRO_RATEMAX / 100-th call, the gyro rate being the simulator's step rate measured from the
+first two steps' timestamps (PX4 reads it from the parameter). The safety monitor's fallback gets
+the observation in the hover layout (`core.px4_raptor.fallback_observation`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from pathlib import Path
+
+import numpy as np
+
+from quadpilot.core import px4_raptor
+from quadpilot.core.params import get_preset
+
+from .contract import ModelContractError, ModelInfo
+from .gru import EXAMPLE_TOLERANCE, GruStep, OnnxGruStep, check_example, weights_from_h5
+from .policy import Policy
+
+FOUNDATION = "raptor:foundation"
+"""The policy name that selects the foundation-policy package's checkpoint."""
+RAPTOR_BACKENDS = ("numpy", "onnxruntime")
+DEFAULT_VEHICLE = "px4_sih_quadx"
+"""The vehicle quad-sitl flies RAPTOR on unless --vehicle says otherwise (PX4 flies it in SIH)."""
+GOLDEN_STEPS = 20
+ACTION_MEANING = "PX4 quad-X motor commands (a + 1)/2 of the clamped policy output, as mc_raptor writes them"
+
+
+def foundation_checkpoint() -> Path:
+    """The checkpoint the foundation-policy package ships; ModelContractError if not installed."""
+    try:
+        import importlib.resources as resources
+
+        return Path(str(resources.files("foundation_policy").joinpath("blob", "checkpoint.h5")))
+    except ModuleNotFoundError:
+        raise ModelContractError(
+            f"{FOUNDATION} needs the foundation-policy package: pip install foundation-policy"
+        ) from None
+
+
+def load_raptor(path, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE) -> RaptorPolicy:
+    """A checked RAPTOR policy from `raptor:foundation` or an RLtools .h5 checkpoint (see the module
+    docstring); ModelContractError, one line, if not."""
+    if backend not in RAPTOR_BACKENDS:
+        raise ValueError(f"a RAPTOR policy runs on the {' or '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
+    if str(path).startswith("raptor:") and str(path) != FOUNDATION:
+        raise ModelContractError(f"{path}: unknown RAPTOR policy name; expected {FOUNDATION}")
+    file = foundation_checkpoint() if str(path) == FOUNDATION else Path(path)
+    if not file.is_file():
+        raise ModelContractError(f"{file}: no such checkpoint file")
+    weights, example = weights_from_h5(file)
+    sha256 = hashlib.sha256(file.read_bytes()).hexdigest()
+    return raptor_from_weights(weights, example, str(path), sha256, backend, vehicle)
+
+
+def raptor_from_weights(
+    weights: dict, example: dict, name: str, sha256: str, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE
+) -> RaptorPolicy:
+    """A checked RAPTOR policy from the weight dict (`gru.GRU_KEYS`) and the checkpoint's example
+    {"input": (T, B, 22), "output": (T, B, 4)}, whatever read them (an RLtools policy.tar reader
+    can feed this); `name` labels it, `sha256` is its source's digest."""
+    if backend not in RAPTOR_BACKENDS:
+        raise ValueError(f"a RAPTOR policy runs on the {' or '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
+    step = GruStep(weights) if backend == "numpy" else OnnxGruStep(weights)
+    diff = check_example(step, example)
+    if math.isnan(diff):
+        raise ModelContractError(f"{name}: no input/output example to replay (mc_raptor's test_policy needs one)")
+    if not diff < EXAMPLE_TOLERANCE:
+        raise ModelContractError(
+            f"{name}: the checkpoint's example is not reproduced (mean abs difference {diff:.3g}; "
+            f"mc_raptor refuses above {EXAMPLE_TOLERANCE:g})"
+        )
+    xs, ys = example["input"][:GOLDEN_STEPS, 0], example["output"][:GOLDEN_STEPS, 0]
+    info = ModelInfo(
+        path=name,
+        layout=px4_raptor.PX4_RAPTOR_LAYOUT,
+        task="hover",
+        control_period_s=1.0 / px4_raptor.TRAINING_RATE_HZ,
+        vehicle=get_preset(vehicle),
+        training_steps=0,
+        source_sha256=sha256,
+        action_meaning=ACTION_MEANING,
+        architecture={"kind": "gru", "hidden": 16, "layers": ["dense 22-16 relu", "gru 16", "dense 16-4"]},
+        envelope={"max_distance_m": 1e3, "max_tilt_deg": 85.0},
+        golden_obs=np.ascontiguousarray(xs),
+        golden_action=np.stack([px4_raptor.motor_commands(y) for y in ys]),
+    )
+    return RaptorPolicy(info, step, backend)
+
+
+class RaptorPolicy(Policy):
+    """A policy that flies through mc_raptor's contract: `own_observation` builds the 22 inputs
+    (with the executor's previous action), `act` runs one executor call and answers PX4 quad-X motor
+    commands in [0, 1]."""
+
+    def __init__(self, info: ModelInfo, step, backend: str, gyro_rate_hz: float | None = None) -> None:
+        super().__init__(info)
+        self.backend = backend
+        self.executor = px4_raptor.Executor(step, step.initial_state)
+        self.gyro_rate_hz = gyro_rate_hz
+        """Hz, the IMU_GYRO_RATEMAX the executor counts with; None: measured from the first two calls."""
+        self.step_s: float | None = None
+        self._last_us: int | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        """Raptor::reset: the GRU state to its initial value, the previous action to 0; the gyro rate
+        is measured again unless it was given."""
+        self.executor.reset()
+        self._last_us = None
+        self.step_s = None  # measured again (the node resets the policy for every flight)
+        if self.gyro_rate_hz is not None:
+            self.executor.force_sync = px4_raptor.force_sync_native(self.gyro_rate_hz)
+            self.step_s = 1.0 / self.gyro_rate_hz
+
+    def own_observation(self, state, target, target_vel, heading, t_us: int) -> np.ndarray:
+        """The observation `Raptor::observe` makes of this state (`core.px4_raptor.observation`), at
+        simulated time t_us (µs): the second call after a reset sets the gyro rate, if not given."""
+        if self.gyro_rate_hz is None and self._last_us is not None and self.step_s is None and t_us > self._last_us:
+            self.step_s = (t_us - self._last_us) * 1e-6
+            self.executor.force_sync = px4_raptor.force_sync_native(1.0 / self.step_s)
+        self._last_us = t_us
+        prev = self.executor.previous_action_input()
+        return px4_raptor.observation(state, target, target_vel, 0.0 if heading is None else heading, prev)
+
+    def _act(self, x: np.ndarray) -> np.ndarray:
+        return self.executor.control(x)
+
+    def verify_golden(self) -> float:
+        """The file's first example steps, each a native call from the initial state (force_sync 1)."""
+        force, self.executor.force_sync = self.executor.force_sync, 1
+        try:
+            return super().verify_golden()
+        finally:
+            self.executor.force_sync = force
+
+    def make_fallback(self):
+        """The safety monitor's fallback for this policy: the classical controller on the hover-layout
+        form of the observation, holding the commanded heading."""
+        return _HoverLayoutFallback(self)
+
+
+class _HoverLayoutFallback:
+    def __init__(self, policy: RaptorPolicy) -> None:
+        self.policy = policy
+        self._controller = None
+
+    def reset(self) -> None:
+        self._controller = None
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        if self._controller is None:  # made at the hand-over, at the step the policy was running at
+            from .fallback import FallbackController
+
+            dt = self.policy.step_s or self.policy.info.control_period_s
+            self._controller = FallbackController(self.policy.info.vehicle, dt, heading_frame=True)
+        return self._controller.act(px4_raptor.fallback_observation(obs))
