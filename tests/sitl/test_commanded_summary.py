@@ -23,6 +23,8 @@ BASE = {
     "packets_dropped": {},
     "failsafe_events": 0,
     "fallback_steps": 0,
+    "hand_overs": 0,
+    "hand_backs": 0,
 }
 COMMANDED = {
     "landed_state": "ON_GROUND",
