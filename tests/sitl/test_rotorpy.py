@@ -125,7 +125,8 @@ def fly(case: RotorPyFlight, tmp_path: Path) -> tuple[dict, dict, np.ndarray, su
         sim.kill()
         _, err = sim.communicate()
     assert sim.returncode == 0, err
-    trace = np.genfromtxt(tmp_path / "node.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
+    # one row reads as a 0-d array: at least 1-d, so that a short flight fails with its message below
+    trace = np.atleast_1d(np.genfromtxt(tmp_path / "node.csv", delimiter=",", names=True, dtype=None, encoding="utf-8"))
     return json.loads(record.read_text()), json.loads(summary.read_text()), trace, node
 
 
