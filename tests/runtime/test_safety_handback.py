@@ -89,7 +89,7 @@ def test_one_bad_observation_costs_one_blind_step_and_the_hold(policy):
     assert monitor.events["fallback_engaged"] == 1 and monitor.events["handed_back"] == 1
     assert list(monitor.transitions) == [
         ("hand-over", "obs_nonfinite"),
-        ("hand-back", f"{HAND_BACK_HOLD_S:g} s inside the recovery envelope"),
+        ("hand-back", f"{HAND_BACK_HOLD_S:g} s in recovery envelope"),
     ]
 
 

@@ -195,3 +195,32 @@ def test_a_simulator_killed_in_lockstep_ends_the_flight_at_once_in_one_line(simu
     proxy.join()
     assert code == 1 and s["failsafe"] == "simulator closed the link"
     assert printed.splitlines()[-1].startswith("quad-sitl: the flight ended early after ")
+
+
+def test_each_hand_over_and_hand_back_is_a_statustext_and_in_the_flight_log(simulator):
+    """A ground station listening where the node sends telemetry hears both changes of who flies,
+    and the flight log holds them with their simulated time."""
+    import socket
+
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    _, sim_port, _ = simulator
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(0.5)
+    proxy = StateFaultProxy(sim_port, [150])
+    cfg = NodeConfig(connect=f"tcp:127.0.0.1:{proxy.port}", duration_s=3.0, gcs=f"udp:127.0.0.1:{gcs.getsockname()[1]}")
+    log = Node(cfg).fly(SafetyMonitor(load_policy(SHIPPED_HOVER, "numpy")))
+    proxy.join()
+    parser, texts = mavlink2.MAVLink(None), []
+    try:
+        while data := gcs.recv(65536):
+            texts += [m.text for m in parser.parse_buffer(data) or [] if m.get_type() == "STATUSTEXT"]
+    except TimeoutError:
+        pass
+    finally:
+        gcs.close()
+    assert texts == ["safety: fallback flying (state_dropped)", "safety: policy flying (0.2 s in recovery envelope)"]
+    (over_t, over, _), (back_t, back, _) = log.handovers
+    assert (over, back) == ("hand-over", "hand-back") and over_t - log.t[0] == pytest.approx(1.5)  # state 150
+    assert back_t - over_t == pytest.approx(0.01 + 0.2)  # the blind step, then the 0.2 s hold

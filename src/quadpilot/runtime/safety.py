@@ -223,7 +223,7 @@ class SafetyMonitor:
         self.fallback.reset()
         self._engaged, self._inside = False, 0
         self.events["handed_back"] += 1
-        self.transitions.append(("hand-back", f"{HAND_BACK_HOLD_S:g} s inside the recovery envelope"))
+        self.transitions.append(("hand-back", f"{HAND_BACK_HOLD_S:g} s in recovery envelope"))  # fits STATUSTEXT
 
     def _fly_fallback(self, obs: np.ndarray, source: str = "fallback") -> np.ndarray:
         self.events["fallback_steps"] += 1
