@@ -430,6 +430,18 @@ ALLOWED: tuple[tuple[str, str], ...] = (
         r"\b1[05]0\s+ms\b",
         "the link-loss and ESC timeouts (100 ms; PX4's COM_DL_LOSS_T plays this role) and the fault tests' bound",
     ),
+    (
+        r"2\.5\s+m\s+and\s+30°",
+        "the safety monitor's recovery envelope: RECOVERY_FRACTION of the hover file's 5 m and 60° (runtime.safety)",
+    ),
+    (
+        r"(?:stalled|stopped)\s+for\s+2\s+s",
+        "the stall the lockstep test imposes on the simulator (tests/sitl/test_handback_flights.py), a test setting",
+    ),
+    (
+        r"\b10\s+ms\s+wait",
+        "RotorPy's PX4Multirotor waits 10 ms for each answer (_fetch_latest_px4_control), a constant of that simulator",
+    ),
 )
 
 

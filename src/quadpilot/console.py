@@ -21,6 +21,7 @@ import math
 import os
 import re
 import secrets
+import stat
 import sys
 import tempfile
 from collections.abc import Callable, Iterator
@@ -43,7 +44,8 @@ class BadFile(Exception):
 def run_command(prog: str, body: Callable[[], int]) -> int:
     """Run a command's `body` (parse, check, work; returns the exit code) with the errors every
     command reports alike: a bad flag (`UsageError`) in one line and exit 2, a bad file (`BadFile`)
-    in one line and exit 1, --help's exit as it is."""
+    in one line and exit 1, a file that could not be read or written after the checks (`OSError`:
+    the disk filled, a directory went away) in one line and exit 1, --help's exit as it is."""
     try:
         return body()
     except SystemExit as e:  # --help
@@ -54,6 +56,14 @@ def run_command(prog: str, body: Callable[[], int]) -> int:
     except BadFile as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return EXIT_BAD_FILE
+    except OSError as e:
+        print(f"{prog}: error: {os_error_line(e)}", file=sys.stderr)
+        return EXIT_BAD_FILE
+
+
+def os_error_line(e: OSError) -> str:
+    """'<file>: <the OS's reason>' for an OSError, in one line."""
+    return f"{os.fsdecode(e.filename) + ': ' if e.filename else ''}{os_reason(e)}"
 
 
 class Parser(argparse.ArgumentParser):
@@ -115,14 +125,51 @@ def positive_float(text: str) -> float:
 positive_float.__name__ = "number > 0"
 
 
+def os_reason(e: OSError) -> str:
+    """The OS's reason for `e` in a few words ("File name too long", "Permission denied", ...)."""
+    return e.strerror or str(e) or type(e).__name__
+
+
+def input_path_problem(path: str | os.PathLike, what: str, *, directory: bool = False) -> str | None:
+    """Why `path` cannot be read as `what` (one line: empty, missing, a directory where a file is
+    expected or the reverse, or the reason the OS gives: a name too long, a loop of symbolic links, a
+    file where a directory is expected on the way), or None. Only `stat`: whether the bytes can be
+    read is the reader's to say."""
+    path = Path(path)
+    if not str(path):
+        return f"{what}: empty path"
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return f"{path}: does not exist; expected {what}"
+    except (OSError, ValueError) as e:  # ValueError: an embedded NUL byte
+        return f"{path}: {os_reason(e) if isinstance(e, OSError) else e}; expected {what}"
+    is_dir = stat.S_ISDIR(st.st_mode)
+    if is_dir != directory:
+        return f"{path}: {'is a directory' if is_dir else 'is not a directory'}; expected {what}"
+    return None
+
+
 def check_output_path(path: Path, flag: str, *, directory: bool = False) -> None:
     """Raise ValueError (one line naming `flag`) unless `path` can be written: a file whose parent
     directory exists and takes a new file, not an existing directory (`directory`: a directory that
     exists, or whose parent does, and takes a new file). A probe file is created and removed, since
-    permission bits do not tell (root ignores them, /proc and /sys refuse anyway)."""
+    permission bits do not tell (root ignores them, /proc and /sys refuse anyway). Whatever the OS
+    says on the way (a name too long, a loop of links, a read-only file system) is that one line."""
     path = Path(path)
     if not str(path):
         raise ValueError(f"{flag}: empty path")
+    try:
+        _check_output_path(path, flag, directory)
+    except OSError as e:
+        raise ValueError(f"{flag} {path}: {os_reason(e)}") from None
+
+
+def _check_output_path(path: Path, flag: str, directory: bool) -> None:
+    try:
+        os.stat(path)  # a name the OS refuses (too long, a loop of links) says so here, not at the end
+    except FileNotFoundError:
+        pass
     if directory:
         if path.exists() and not path.is_dir():
             raise ValueError(f"{flag} {path}: exists and is not a directory")
@@ -131,8 +178,11 @@ def check_output_path(path: Path, flag: str, *, directory: bool = False) -> None
         if path.is_dir():
             raise ValueError(f"{flag} {path}: is a directory; expected a file name")
         where = path.parent
-    if not where.is_dir():
-        raise ValueError(f"{flag} {path}: directory {where} does not exist")
+    try:
+        if not stat.S_ISDIR(os.stat(where).st_mode):
+            raise ValueError(f"{flag} {path}: {where} is not a directory")
+    except FileNotFoundError:
+        raise ValueError(f"{flag} {path}: directory {where} does not exist") from None
     try:
         fd, probe = tempfile.mkstemp(prefix=".quadpilot-write-check-", dir=where)
     except OSError as e:

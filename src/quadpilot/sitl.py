@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 import quadpilot.sitl_node as sitl_node
-from quadpilot.console import Parser, UsageError, atomic_write, check_output_path
+from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, input_path_problem, os_error_line
 from quadpilot.console import int_in as _int_in
 
 # The shipped models are package data (`runtime.shipped`): in a source checkout this is models/.
@@ -324,17 +324,6 @@ def _bad_file(message: str) -> int:
     return 1
 
 
-def _check_input_file(path: Path, what: str) -> str | None:
-    """Why `path` cannot be an input file (missing, a directory), or None."""
-    if not str(path):
-        return f"{what}: empty path"
-    if path.is_dir():
-        return f"{path}: is a directory; expected {what}"
-    if not path.exists():
-        return f"{path}: does not exist; expected {what}"
-    return None
-
-
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -387,7 +376,7 @@ def main(argv: list[str] | None = None) -> int:
     policy_path = args.policy
     named = str(policy_path).startswith(sitl_node.RAPTOR_NAME)  # a policy the runtime knows by name (runtime.raptor)
     for path, what in ((None if named else policy_path, sitl_node.POLICY_FILE), (args.key, "a signing key file")):
-        if path is not None and (why := _check_input_file(path, what)) is not None:
+        if path is not None and (why := input_path_problem(path, what)) is not None:
             return _bad_flag(why)
     outputs = {"--json": args.json, "--plot": args.plot, "--video": args.video, "--tlog": args.tlog}
     outputs["--trace"] = args.trace
@@ -586,6 +575,9 @@ def _draw(args, logs, period: float) -> int:
             print(f"  video                   {args.video}")
     except VizUnavailable as e:
         print(f"quad-sitl: error: {e}", file=sys.stderr)
+        return 1
+    except OSError as e:  # the picture could not be written (the disk filled since the check)
+        print(f"quad-sitl: error: {os_error_line(e)}", file=sys.stderr)
         return 1
     return 0
 

@@ -13,9 +13,13 @@ simulator (`summarise`, `print_summary`).
   per simulator step; the simulator's MAVLink version; body rates from HIL_SENSOR; the policy at
   its trained rate on simulated time, its command held in between.
 - It flies `--duration` seconds of simulated time and prints one line: steps, the steps that fell
-  back to the safety monitor's fallback and why, the error to the target (last 2 s and final), the
-  yaw rate, the reply latency. Exit 1 with a one-line reason when more than `MAX_FALLBACK_FRACTION`
-  of the steps fell back, when the flight ended early (failsafe), or when nothing was flown.
+  back to the safety monitor's fallback and why, its hand-overs and hand-backs, the error to the
+  target (last 2 s and final), the yaw rate, the reply latency. Exit 1 with a one-line reason when
+  more than `MAX_FALLBACK_FRACTION` of the steps fell back (not counting the steps the fallback
+  flew after bad input while it waited to hand back, "recovering": the price of the hand-back rule,
+  `runtime.safety.HAND_BACK_HOLD_S`, not a failure of the policy), when the policy flew less than
+  `MIN_POLICY_FRACTION` of the steps, when the flight ended early (failsafe), or when nothing was
+  flown.
 
 Success is not judged here: the node does not know where the simulator's ground is (a crash), and
 a foreign airframe may hold a point a few centimetres off; the figures are printed and written
@@ -45,6 +49,9 @@ RAPTOR_NAME = "raptor:"
 """A policy argument starting so is a name the runtime knows (runtime.raptor), not a file."""
 MAX_FALLBACK_FRACTION = 0.10
 """More than this share of the steps flown by the fallback (or blind) fails the run (exit 1)."""
+MIN_POLICY_FRACTION = 0.5
+"""Less than this share of the steps flown by the policy fails the run (exit 1): the policy must fly
+the flight, whatever excused the fallback's steps."""
 MAX_TARGET_M = 1000.0
 """m, largest |component| of --target: the safety monitor refuses a larger position error as no
 state at all (`runtime.safety.ObservationLimits.pos_error`)."""
@@ -54,12 +61,14 @@ LATE_REPLY_S = 0.01
 """s: a reply later than this misses RotorPy's PX4Multirotor step, which waits 10 ms for it and
 then applies zero motors (rotorpy/vehicles/px4_multirotor.py, `_fetch_latest_px4_control`)."""
 LINK_TIMEOUT_S = 1.0
-"""s of host time without a state before the node's failsafe: a foreign simulator need not keep real
-time (RotorPy's PX4Multirotor integrates each step with scipy's Radau, 5 to 15 ms of CPU for a 4 ms
-step, and more on a loaded machine), so not the 0.1 s the node allows our own simulator."""
+"""s of host time without a state before the node's failsafe in real time (`--realtime`): a foreign
+simulator need not keep real time (RotorPy's PX4Multirotor integrates each step with scipy's Radau,
+5 to 15 ms of CPU for a 4 ms step, and more on a loaded machine), so not the 0.1 s the node allows
+our own simulator. In lockstep the node waits while the link holds (`autopilot.node`)."""
 JUDGED_WINDOW_S = 2.0
 """s at the end of the flight the error and the yaw rate are averaged over (`core.mission`'s window)."""
-NOT_A_REASON = {"fallback_steps", "blind_steps", "fallback_engaged", "command_clamped"}
+NOT_A_REASON = {"fallback_steps", "blind_steps", "fallback_engaged", "handed_back", "fallback_latched"}
+NOT_A_REASON |= {"command_clamped"}
 """SafetyMonitor.events counters that count, rather than explain, a fallback."""
 FLAGS = ("--home", "--target", "--trace")
 COMMANDED_DURATION_S = 600.0
@@ -173,6 +182,8 @@ def flight_summary(log, monitor, policy_period_s: float) -> dict:
     targets = np.asarray(log.targets, np.float64).reshape(-1, 3)
     step_s = log.step_s
     fallback = log.replies - log.steps + sum(1 for s in log.sources if s not in NOT_FLOWN_BY_FALLBACK)
+    recovering = sum(1 for s in log.sources if s == "recovering")
+    policy_steps = sum(1 for s in log.sources if s == "policy")
     lat = np.asarray(log.latency_s, np.float64)
     out: dict = {
         "steps": int(log.replies),
@@ -184,6 +195,11 @@ def flight_summary(log, monitor, policy_period_s: float) -> dict:
         "fallback_steps": int(fallback),
         "fallback_fraction": fallback / log.replies if log.replies else math.nan,
         "fallback_reasons": {k: int(v) for k, v in sorted(monitor.events.items()) if k not in NOT_A_REASON},
+        "recovering_steps": int(recovering),
+        "judged_fallback_fraction": (fallback - recovering) / log.replies if log.replies else math.nan,
+        "policy_fraction": policy_steps / log.replies if log.replies else math.nan,
+        **handover_counts(log),
+        "handovers": [list(h) for h in log.handovers],
         "failsafe": log.failsafe,
         "home": None
         if log.home is None
@@ -215,6 +231,14 @@ def flight_summary(log, monitor, policy_period_s: float) -> dict:
     return out
 
 
+def handover_counts(log) -> dict:
+    """Who-flies changes of one flight (`EpisodeLog.handovers`), counted by kind."""
+    kinds = [h[1] for h in log.handovers]
+    return {k.replace("-", "_") + "s": kinds.count(k) for k in ("hand-over", "hand-back")} | {
+        "latched": "latched" in kinds
+    }
+
+
 def summary_line(s: dict) -> str:
     """The one line a run prints."""
     reasons = ", ".join(f"{k} {v}" for k, v in s["fallback_reasons"].items())
@@ -224,6 +248,9 @@ def summary_line(s: dict) -> str:
         f"quad-sitl: {s['steps']:,} steps of {s['step_s'] * 1e3:.2f} ms (policy {s['policy_rate_hz']:.0f} Hz, "
         f"{s['policy_steps']:,} runs), fallback {s['fallback_steps']} steps"
         + (f" ({reasons})" if reasons else "")
+        + (f", {s['recovering_steps']} of them recovering" if s["recovering_steps"] else "")
+        + f", hand-overs {s['hand_overs']}, hand-backs {s['hand_backs']}"
+        + (" (latched)" if s["latched"] else "")
         + f", error last 2 s {s['error_last_2s_m'] * 100:.2f} cm, final {s['final_error_m'] * 100:.2f} cm, "
         f"|yaw rate| {s['mean_abs_yaw_rate_last_2s_radps']:.3f} rad/s, reply p50 {s['reply_latency_p50_us']:.0f} µs "
         f"p99 {s['reply_latency_p99_us']:.0f} µs, MAVLink {s['mavlink_version']}, home {where}"
@@ -309,11 +336,18 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
         return _failed(f"nothing flown: {log.failsafe or 'no step from the simulator'}")
     if log.failsafe is not None:
         return _failed(f"the flight ended early after {log.replies:,} steps: failsafe: {log.failsafe}")
-    if s["fallback_fraction"] > MAX_FALLBACK_FRACTION:
+    if s["judged_fallback_fraction"] > MAX_FALLBACK_FRACTION:
         reasons = ", ".join(f"{k} {v}" for k, v in s["fallback_reasons"].items()) or "no reason recorded"
+        counted = s["fallback_steps"] - s["recovering_steps"]
         return _failed(
-            f"{s['fallback_steps']:,} of {s['steps']:,} steps ({s['fallback_fraction']:.1%}) fell back ({reasons}): "
-            f"more than {MAX_FALLBACK_FRACTION:.0%}"
+            f"{counted:,} of {s['steps']:,} steps ({s['judged_fallback_fraction']:.1%}) fell back ({reasons}"
+            + (f"; {s['recovering_steps']} recovering steps not counted" if s["recovering_steps"] else "")
+            + f"): more than {MAX_FALLBACK_FRACTION:.0%}"
+        )
+    if s["policy_fraction"] < MIN_POLICY_FRACTION:
+        return _failed(
+            f"the policy flew {s['policy_fraction']:.1%} of {s['steps']:,} steps ({s['hand_overs']} hand-overs, "
+            f"{s['hand_backs']} hand-backs): less than {MIN_POLICY_FRACTION:.0%}"
         )
     return code
 
@@ -336,6 +370,7 @@ def summarise(logs, period: float, task: str = "hover") -> dict:
         for k, v in log.dropped.items():
             dropped[k] = dropped.get(k, 0) + v
     fallback = sum(sum(1 for s in log.sources if s not in NOT_FLOWN_BY_FALLBACK) for log in logs)
+    changes = [handover_counts(log) for log in logs]
     finite = [e for e in eps if math.isfinite(e["rms_error_m"])]
     out = {
         "episodes": len(eps),
@@ -354,6 +389,9 @@ def summarise(logs, period: float, task: str = "hover") -> dict:
         "control_latency_p99_us": float(np.percentile(lat, 99)) if lat.size else math.nan,
         "failsafe_events": sum(1 for log in logs if log.failsafe),
         "fallback_steps": int(fallback),
+        "hand_overs": sum(c["hand_overs"] for c in changes),
+        "hand_backs": sum(c["hand_backs"] for c in changes),
+        "handovers": [[list(h) for h in log.handovers] for log in logs],
         "telemetry_messages": int(sum(log.telemetry_sent for log in logs)),
         "packets_dropped": dropped,
         "per_episode": eps,
@@ -388,7 +426,10 @@ def print_summary(s: dict, policy: Path) -> None:
         f"  control-loop latency    p50 {s['control_latency_p50_us']:.0f} µs, p99 {s['control_latency_p99_us']:.0f} µs"
     )
     dropped = ", ".join(f"{k} {v}" for k, v in sorted(s["packets_dropped"].items())) or "none"
-    print(f"  failsafes {s['failsafe_events']}, fallback steps {s['fallback_steps']}, packets dropped: {dropped}")
+    print(
+        f"  failsafes {s['failsafe_events']}, fallback steps {s['fallback_steps']} (hand-overs "
+        f"{s['hand_overs']}, hand-backs {s['hand_backs']}), packets dropped: {dropped}"
+    )
     for c in s.get("commanded", []):
         gcs_dropped = ", ".join(f"{k} {v}" for k, v in sorted(c["gcs_dropped"].items())) or "none dropped"
         end = "never disarmed after flying" if c["disarmed_at_s"] is None else f"disarmed at {c['disarmed_at_s']:.1f} s"

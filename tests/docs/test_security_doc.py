@@ -19,7 +19,8 @@ def _defined(folder: Path) -> set[str]:
 
 
 def test_every_test_the_threat_model_names_exists():
-    files = {"test_model_files", "test_wire_input", "test_cli_input"}
+    files = {"test_model_files", "test_wire_input", "test_cli_input", "test_path_errors", "test_safety_handback"}
+    files |= {"test_handback_flights"}
     named = set(re.findall(r"(?<!Raptor::)\b(test_[a-z0-9_]+)\b", DOC)) - files  # Raptor::test_policy is PX4's
     missing = sorted(named - _defined(ROOT / "tests"))
     assert len(named) >= 20 and not missing, f"docs/security.md names tests that do not exist: {missing}"

@@ -76,7 +76,7 @@ def test_blind_steps_are_counted_each_step_and_reset_re_arms(policy):
     for n in (1, 2, 3):
         np.testing.assert_array_equal(monitor.act(bad), np.full(4, hover, np.float32))
         assert monitor.events["blind_steps"] == n and monitor.events["obs_nonfinite"] == n
-    assert monitor.events["fallback_engaged"] == 1 and monitor.in_fallback is True
+    assert monitor.events["fallback_engaged"] == 1 and monitor.in_fallback is True and not monitor.latched
     monitor.reset()
     assert monitor.in_fallback is False and monitor.source == "policy"
     monitor.act(hover_obs())

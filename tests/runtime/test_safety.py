@@ -2,10 +2,12 @@
 
 What it must guarantee: a bad observation (non-finite, or beyond what any sensor of a flying vehicle
 reports) never reaches the policy; a state outside the flight envelope the policy was trained in is
-flown by the classical fallback; a bad command never reaches the motors; a hand-over latches until
-`reset()`; and the output is always a finite float32 (4,) in [0, 1]. The closed-loop flights use
-`core.dynamics.step` and `core.observation.build_observation` exactly as the runtime would (float32
-observations, float64 state).
+flown by the classical fallback; a bad command never reaches the motors; the fallback hands back to
+the policy after `HAND_BACK_HOLD_S` inside the recovery envelope, and latches only for a broken
+policy (`tests/runtime/test_safety_handback.py` holds the state machine); and the output is always
+a finite float32 (4,) in [0, 1]. The closed-loop flights use `core.dynamics.step` and
+`core.observation.build_observation` exactly as the runtime would (float32 observations, float64
+state).
 """
 
 import math
@@ -267,52 +269,54 @@ def test_envelope_limits_are_the_files():
     assert policy.info.envelope == {"max_distance_m": 5.0, "max_tilt_deg": 60.0}
 
 
-# --- latching ------------------------------------------------------------------------------
+# --- hand-over and hand-back ----------------------------------------------------------------
 
 
-def test_hand_over_latches_until_reset_and_events_are_kept(policy):
-    good = in_envelope_rows(policy.info)
+def test_hand_over_hands_back_after_the_hold_and_events_are_kept(policy):
+    good = obs_of(state(pos=(0.1, -0.1, 0.05)))
     spy = Spy(policy)
     monitor = SafetyMonitor(spy)
-    monitor.act(good[0])
+    monitor.act(good)
     assert monitor.source == "policy" and len(spy.seen) == 1
 
-    bad = good[0].copy()
+    bad = good.copy()
     bad[3] = np.nan
     monitor.act(bad)
     assert monitor.in_fallback and monitor.events["fallback_engaged"] == 1
 
-    for obs in good:  # good observations: still the fallback, the policy is not asked
-        u = monitor.act(obs)
-        assert_safe_command(u)
-        assert monitor.source == "fallback" and monitor.in_fallback
+    resets = spy.resets
+    for _ in range(monitor.hold_ticks):  # good observations: the fallback holds, the policy is not asked
+        assert_safe_command(monitor.act(good))
+        assert monitor.source == "recovering" and monitor.in_fallback
     assert len(spy.seen) == 1
     assert monitor.events["fallback_engaged"] == 1, "one hand-over, however long the fallback flies"
     assert monitor.events["blind_steps"] == 1, "the bad observation itself is flown blind at hover thrust"
-    assert monitor.events["fallback_steps"] == len(good)
+    assert monitor.events["fallback_steps"] == monitor.hold_ticks
 
-    resets = spy.resets
-    monitor.reset()
-    assert spy.resets == resets + 1, "reset() clears the policy's recurrent state"
-    assert not monitor.in_fallback and monitor.source == "policy"
-    u = monitor.act(good[1])
-    np.testing.assert_array_equal(u, policy.act(good[1]))
-    assert monitor.source == "policy" and len(spy.seen) == 2
-    assert monitor.events["obs_nonfinite"] == 1 and monitor.events["fallback_engaged"] == 1, "events are a log"
+    u = monitor.act(good)  # the hold is over: the policy flies again, its recurrent state cleared
+    np.testing.assert_array_equal(u, policy.act(good))
+    assert monitor.source == "policy" and not monitor.in_fallback and len(spy.seen) == 2
+    assert spy.resets == resets + 1, "a hand-back clears the policy's recurrent state"
+    assert monitor.events["handed_back"] == 1 and monitor.events["obs_nonfinite"] == 1
 
     # and a second fault is a second hand-over
     monitor.act(bad)
     assert monitor.events["obs_nonfinite"] == 2 and monitor.events["fallback_engaged"] == 2
 
 
-def test_out_of_envelope_also_latches(policy):
+def test_out_of_envelope_hands_back_once_inside_the_recovery_envelope(policy):
     monitor = SafetyMonitor(policy)
     monitor.act(obs_of(state(roll_deg=75.0)))
-    monitor.act(obs_of(state()))  # back level at the target: still the fallback
     assert monitor.source == "fallback" and monitor.events["out_of_envelope"] == 1
-    monitor.reset()
+    monitor.act(obs_of(state(roll_deg=45.0)))  # back inside the exit envelope, not the recovery one
+    for _ in range(3 * monitor.hold_ticks):
+        monitor.act(obs_of(state(roll_deg=40.0)))
+        assert monitor.source == "fallback", "40° is beyond the 30° recovery envelope"
+    for _ in range(monitor.hold_ticks):
+        monitor.act(obs_of(state()))
+        assert monitor.source == "fallback", "the policy's own exit: its hold counts as fallback"
     monitor.act(obs_of(state()))
-    assert monitor.source == "policy"
+    assert monitor.source == "policy" and monitor.events["handed_back"] == 1
 
 
 # --- command checks (a foreign graph, simulated) -------------------------------------------
@@ -333,8 +337,9 @@ def test_nonfinite_command_hands_over_to_the_fallback(info):
     assert monitor.events["command_nonfinite"] == 1 and monitor.in_fallback and monitor.source == "fallback"
     reference = FallbackController(info.vehicle, info.control_period_s, heading_frame=info.layout.heading_frame)
     np.testing.assert_allclose(u, reference.act(obs), atol=1e-6)
-    monitor.act(obs)  # latched: the broken policy is not asked again
-    assert double.calls == 1
+    for _ in range(3 * monitor.hold_ticks):  # latched: the broken policy is not asked again
+        monitor.act(obs)
+    assert double.calls == 1 and monitor.latched and monitor.events["handed_back"] == 0
 
 
 @pytest.mark.parametrize("bad", [np.inf, -np.inf], ids=["+inf", "-inf"])
@@ -432,8 +437,10 @@ def test_start_outside_the_envelope_is_caught_and_flown_back_by_the_fallback(pol
     assert np.linalg.norm(s0[0:3] - TARGET) > policy.info.envelope["max_distance_m"]
     states, sources = fly(monitor, s0, 8.0)
     err = pos_error(states)
-    assert set(sources) == {"fallback"}, "latched from the first step"
+    back = sources.index("policy")  # the fallback from the first step, the policy once back inside
+    assert back > monitor.hold_ticks and set(sources[:back]) == {"fallback"} and set(sources[back:]) == {"policy"}
     assert monitor.events["out_of_envelope"] == 1 and monitor.events["fallback_engaged"] == 1
+    assert monitor.events["handed_back"] == 1
     assert np.all(tilt_deg(states) < 60.0) and np.all(states[:, 2] > 0.0)
     assert err[-1] <= 0.10, f"final error {err[-1]:.3f} m"
 
@@ -456,8 +463,10 @@ def test_sensor_dropout_mid_flight_does_not_crash_the_vehicle(policy, burst_star
 
     states, sources = fly(monitor, s0, 6.0, corrupt=dropout)
     err = pos_error(states)
-    assert set(sources[:first]) == {"policy"} and set(sources[first:]) == {"fallback"}
-    assert monitor.events["obs_nonfinite"] == len(burst)
+    assert set(sources[:first]) == {"policy"} and set(sources[first : first + len(burst)]) == {"fallback"}
+    back = first + len(burst) + sources[first + len(burst) :].index("policy")
+    assert set(sources[back:]) == {"policy"}, "handed back once, for good"
+    assert monitor.events["obs_nonfinite"] == len(burst) and monitor.events["handed_back"] == 1
     tilt = tilt_deg(states)
     assert tilt.max() < 60.0, f"tilted {tilt.max():.0f}° at {DT * tilt.argmax():.2f} s (dropout from {burst_start_s} s)"
     assert states[:, 2].min() > 0.0, f"lowest altitude {states[:, 2].min():.2f} m"

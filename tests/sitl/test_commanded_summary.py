@@ -23,6 +23,8 @@ BASE = {
     "packets_dropped": {},
     "failsafe_events": 0,
     "fallback_steps": 0,
+    "hand_overs": 0,
+    "hand_backs": 0,
 }
 COMMANDED = {
     "landed_state": "ON_GROUND",
@@ -39,6 +41,7 @@ def test_a_scripted_flight_prints_its_verdict(capsys):
     out = capsys.readouterr().out
     assert "success rate            0%" in out and "RMS 37.29 cm" in out
     assert "worst heading error 3.0°" in out  # the yaw rule's figures
+    assert "fallback steps 0 (hand-overs 0, hand-backs 0)" in out
 
 
 def test_a_commanded_flight_prints_the_commander_line_and_no_hover_verdict(capsys):

@@ -45,6 +45,9 @@ class EpisodeLog:
     failsafe_latency_s: float | None = None
     wall_s: float = 0.0
     telemetry_sent: int = 0
+    handovers: list = field(default_factory=list)
+    """(simulated time s, "hand-over" | "hand-back" | "latched", why) of every change of who flies
+    (`SafetyMonitor.transitions`), in order."""
     events: list = field(default_factory=list)
     """Commanded flights: (simulated time s, text) of every STATUSTEXT the commander sent."""
     commander: dict | None = None

@@ -29,9 +29,14 @@ the heading of the first valid state; the policy is given it at most `HEADING_RE
 its yaw (`heading_within_reach`).
 
 One receive point (`Link.recv`, one system call per batch of messages) dispatching on
-`get_type()` through a table of handlers, one per message type (`_Flight.HANDLERS`). Link loss is
-measured on the host's monotonic clock, never simulation time: no state for `link_timeout_s`
-(100 ms) latches a failsafe (motors off, disarmed, STATUSTEXT), which only a new `fly()` clears.
+`get_type()` through a table of handlers, one per message type (`_Flight.HANDLERS`). In real time,
+link loss is measured on the host's monotonic clock: no state for `link_timeout_s` (100 ms) latches
+a failsafe (motors off, disarmed, STATUSTEXT), which only a new `fly()` clears. In lockstep time is
+the simulator's: between two steps nothing happens to the vehicle however long the host takes, so
+the node waits for the next step as long as the simulator holds the TCP link open (a closed or lost
+connection still ends the flight at once); over UDP, which has no connection to lose, up to
+`UDP_LOCKSTEP_SILENCE_S`. Valid states that stop while bad ones keep coming are still a failsafe:
+after `link_timeout_s` of simulated time ("no valid state").
 Timestamps that go backwards, repeat or jump are dropped and counted. Motor commands go to the
 simulator's address only; optional MAVLink 2 signing (`signing_key`).
 
@@ -45,13 +50,15 @@ one cycle, with one actuator output, per HIL_SENSOR whatever its estimator makes
 answer is the safety monitor's blind command (hover thrust on every motor, no moment,
 `SafetyMonitor.blind`), not the policy on the last valid state: flying a frozen attitude was
 measured to flip the vehicle within 0.2 s (see `runtime.safety`); the monitor then hands over to
-the fallback, as for any observation it cannot trust. A dropped state does not restart the
-link-loss timer, so a stream of them ends in the same failsafe as silence ("no valid state").
+the fallback, as for any observation it cannot trust, and hands back to the policy once valid states
+have kept the vehicle inside its recovery envelope for `safety.HAND_BACK_HOLD_S`. Every hand-over
+and hand-back goes into `EpisodeLog.handovers` and a STATUSTEXT. A dropped state does not restart
+the link-loss timer, so a stream of them ends in the same failsafe as silence ("no valid state").
 
 Telemetry for a ground station (`gcs`, UDP 127.0.0.1:14550 by default, where QGroundControl and
 MAVProxy listen; `autopilot.ground_station`): HEARTBEAT and SYS_STATUS at 1 Hz, ATTITUDE and
 LOCAL_POSITION_NED at `telemetry_hz`, GLOBAL_POSITION_INT at 5 Hz (simulated time), STATUSTEXT on
-failsafe and fallback. Telemetry is best effort: nobody listening costs nothing and stops nothing.
+failsafe, hand-over and hand-back. Telemetry is best effort: nobody listening costs nothing and stops nothing.
 
 Commanded (`NodeConfig.command`): the same socket also takes the ground station's commands. Every
 step, what it sent goes to a `autopilot.commander.Commander` (at the step's simulated time) and the
@@ -95,6 +102,9 @@ that the ground station hears the landed, disarmed vehicle in its 1 Hz streams b
 _ACTUATOR_CONTROLS = mavlink2.MAVLink_hil_actuator_controls_message
 IDLE = np.zeros(NUM_MOTORS, np.float32)
 """The command while the commander holds the motors off (disarmed, or idle on the ground)."""
+UDP_LOCKSTEP_SILENCE_S = 5.0
+"""s of host time a lockstep flight over UDP waits for the next state: the same as our simulator
+waits for the node (`firmware_sim.config.SimConfig.lockstep_timeout_s`)."""
 TICK_TOLERANCE_US = 100
 """µs: a step this close before a policy tick counts as at it. Simulators that keep time in a float
 stamp steps a microsecond off (RotorPy: int(t·1e6) of a sum of 0.004 s steps gives 11 999 for 12 ms);
@@ -127,7 +137,8 @@ class NodeConfig:
     """s, in lockstep: poll the simulator link this long before sleeping (`transport.Link.spin_s`;
     0: sleep at once, off with one usable CPU)."""
     link_timeout_s: float = 0.1
-    """s without a state message (host monotonic clock) before the failsafe latches."""
+    """s without a state message before the failsafe latches: host time in real time; in lockstep
+    only without a valid state, on simulated time (see the module docstring)."""
     first_state_timeout_s: float = 10.0
     """s to wait for the simulator's first state message after connecting (a simulator started by
     hand may take a while between our HEARTBEAT and its first step); `link_timeout_s` after it."""
@@ -232,6 +243,8 @@ class Node:
                     link.flush()
                     last_heartbeat = now
                 limit = cfg.link_timeout_s if flight.any_state else cfg.first_state_timeout_s
+                if cfg.lockstep and flight.any_state:  # the simulator's time: wait while the link holds
+                    limit = UDP_LOCKSTEP_SILENCE_S if link.peer_label.startswith("udp:") else math.inf
                 wait = min(limit - (now - flight.last_state_at), cfg.heartbeat_period_s)
                 try:
                     msg = link.recv(wait) if wait > 0 else None  # the one receive point
@@ -258,6 +271,10 @@ class Node:
                     if msg is None:
                         break
                     handle(msg)
+                if flight.failsafe is not None:  # lockstep: valid states stopped, on simulated time
+                    log.failsafe, log.failsafe_latency_s = flight.failsafe, time.monotonic() - flight.last_state_at
+                    self._failsafe(link, gcs, log.failsafe, flight.state_time, commander)
+                    break
         except transport.PeerClosed:
             if not flight.done:
                 log.failsafe = "simulator closed the link"
@@ -359,11 +376,12 @@ class _Flight:
         self.state_time = -1
         self.bad_time = -1  # time_usec of the last state dropped by those checks: its step is flown blind
         self.bad_at = -math.inf
+        self.valid_us: int | None = None  # time_usec of the last valid state (or the first state of any kind)
+        self.failsafe: str | None = None  # set by a handler: the loop latches it
         self.estimate: np.ndarray | None = None  # ODOMETRY: the estimator's state, if the simulator sends one
         self.estimate_time = -1
         self.last_sensor_time = -1
         self.received = 0
-        self.source = "policy"
         # the policy's clock on simulated time (see the module docstring)
         policy_period = monitor.policy.info.control_period_s
         self.period_us = round(policy_period * 1e6)
@@ -392,6 +410,12 @@ class _Flight:
         """HIL_STATE_QUATERNION: the ground truth of a step, checked before it is believed."""
         log = self.log
         self.any_state = True
+        if self.valid_us is None:
+            self.valid_us = msg.time_usec
+        if self.cfg.lockstep and self.bad_time > self.state_time and msg.time_usec > self.bad_time:
+            if msg.time_usec - self.valid_us > self.cfg.link_timeout_s * 1e6:  # bad states since, on simulated time
+                self.failsafe = "no valid state"
+                return
         if msg.time_usec <= self.state_time:
             log.dropped["time_backwards" if msg.time_usec < self.state_time else "time_repeated"] += 1
             return
@@ -419,7 +443,7 @@ class _Flight:
         if self.heading is None:  # hold the first valid heading
             self.heading = float(new[YAW])
         self.state, self.state_values = new, values
-        self.state_time = msg.time_usec
+        self.state_time = self.valid_us = msg.time_usec
         self.last_state_at = time.monotonic()
         self.received += 1
 
@@ -518,13 +542,13 @@ class _Flight:
         log.sources.append(self.held_source)
         log.ticks.append(tick)
         gcs = self.gcs
+        while monitor.transitions:  # hand-overs and hand-backs: into the log and to the ground station
+            kind, why = monitor.transitions.popleft()
+            log.handovers.append((round(t_us * 1e-6, 6), kind, why))
+            if gcs is not None:
+                text = {"hand-over": "fallback flying", "hand-back": "policy flying", "latched": "fallback latched"}
+                gcs.statustext(mavlink2.MAV_SEVERITY_WARNING, f"safety: {text[kind]} ({why})")
         if gcs is not None:
-            if self.held_source not in (self.source, "idle"):
-                self.source = self.held_source
-                gcs.statustext(
-                    mavlink2.MAV_SEVERITY_WARNING,
-                    f"safety: {self.source} flying ({', '.join(sorted(monitor.events)) or 'policy'})",
-                )
             if tick and commander is None:  # telemetry only ever from a state that passed the checks, and new
                 gcs.step(self.ticks, state, t_us, True, sum(log.dropped.values()), self.received)
         if tick:

@@ -37,7 +37,7 @@ class _BadFlag(Exception):
 
 def _check_args(args) -> Path:
     """Refuse bad flag values before anything is loaded; returns the output path."""
-    from quadpilot.console import check_output_path
+    from quadpilot.console import check_output_path, input_path_problem
 
     from .onnx_export import OpsetError, check_opset
 
@@ -48,9 +48,8 @@ def _check_args(args) -> Path:
     if not 2 <= args.parity_samples <= MAX_PARITY_SAMPLES:
         raise _BadFlag(f"--parity-samples must be in 2..{MAX_PARITY_SAMPLES:,}, got {args.parity_samples:,}")
     ckpt = args.checkpoint
-    if not ckpt.is_file():
-        what = "is a directory" if ckpt.is_dir() else "does not exist"
-        raise _BadFlag(f"{ckpt}: {what}; expected policy.pt (or checkpoint.pt) written by quad-train")
+    if (why := input_path_problem(ckpt, "policy.pt (or checkpoint.pt) written by quad-train")) is not None:
+        raise _BadFlag(why)
     if args.format == "c":
         out = args.output or ckpt.with_name(f"{ckpt.stem}_c")
     else:

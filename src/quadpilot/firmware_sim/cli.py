@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from quadpilot.console import Parser, UsageError, atomic_write, float_in
+from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, float_in
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
 from quadpilot.core.params import PRESETS, VehicleParams
@@ -250,14 +250,17 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         raise UsageError(str(e)) from None
 
 
-def _write_stats(path: str, stats: SimStats) -> None:
+def _write_stats(path: str, stats: SimStats, prog: str = "quad-sitl") -> bool:
+    """--json on the way out; False (and one line) if it could not be written."""
     import json
 
     try:
         text = json.dumps(dataclasses.asdict(stats), indent=1)
         atomic_write(path, lambda f: f.write(text.encode()))
     except OSError as e:
-        print(f"quad-sitl: cannot write {path}: {e.strerror or e}", file=sys.stderr)
+        print(f"{prog}: error: --json {path}: {e.strerror or e}", file=sys.stderr)
+        return False
+    return True
 
 
 def main_sim_only(argv: list[str] | None = None, prog: str = "quad-sitl") -> int:
@@ -267,6 +270,11 @@ def main_sim_only(argv: list[str] | None = None, prog: str = "quad-sitl") -> int
     try:
         args = build_sim_parser(f"{prog} --sim-only").parse_args(argv)
         cfg = config_from_args(args)
+        if args.json is not None:  # before serving: not lost at the end
+            try:
+                check_output_path(Path(args.json), "--json")
+            except ValueError as e:
+                raise UsageError(str(e)) from None
     except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
     except UsageError as e:
@@ -290,8 +298,7 @@ def main_sim_only(argv: list[str] | None = None, prog: str = "quad-sitl") -> int
         return 130
     finally:
         sim.close()
-        if args.json:
-            _write_stats(args.json, sim.stats)
+        written = not args.json or _write_stats(args.json, sim.stats, prog)
     dropped = sum(stats.dropped.values())
     print(f"{prog}: served {stats.episodes} episodes, {stats.steps} steps, dropped {dropped} packets", flush=True)
-    return 0
+    return 0 if written else 1

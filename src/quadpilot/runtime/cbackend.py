@@ -147,8 +147,9 @@ def _cached(target: Path, code: cgen.CCode) -> bool:
     try:
         if source.read_text(encoding="ascii", errors="replace") != code.source:
             return False
-        recorded = digest.read_text(encoding="ascii", errors="replace").strip()
-        return hmac.compare_digest(recorded, _sha256_file(lib))
+        with open(digest, "rb") as f:  # bytes: whatever was planted there (non-ASCII too) compares
+            recorded = f.read(256).strip()
+        return hmac.compare_digest(recorded, _sha256_file(lib).encode("ascii"))
     except OSError:
         return False
 

@@ -112,16 +112,19 @@ def read_model(path: str | os.PathLike):
     from google.protobuf.message import DecodeError
 
     path = Path(path)
-    if not path.is_file():
-        raise fail(path, "no such file (expected an .onnx file written by quad-export)")
-    size = path.stat().st_size
-    if size == 0:
-        raise fail(path, "the file is empty (expected an ONNX model written by quad-export)")
-    if size > MAX_FILE_BYTES:
-        raise fail(
-            path, f"{size / 2**20:.0f} MiB is far larger than any policy file (limit {MAX_FILE_BYTES >> 20} MiB)"
-        )
-    data = path.read_bytes()
+    try:
+        if not path.is_file():
+            raise fail(path, "no such file (expected an .onnx file written by quad-export)")
+        size = path.stat().st_size
+        if size == 0:
+            raise fail(path, "the file is empty (expected an ONNX model written by quad-export)")
+        if size > MAX_FILE_BYTES:
+            raise fail(
+                path, f"{size / 2**20:.0f} MiB is far larger than any policy file (limit {MAX_FILE_BYTES >> 20} MiB)"
+            )
+        data = path.read_bytes()
+    except OSError as e:  # a name too long, no permission to read, ...
+        raise fail(path, f"cannot read it: {e.strerror or e}") from None
     try:
         model = onnx.ModelProto()
         model.ParseFromString(data)

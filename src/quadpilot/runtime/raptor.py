@@ -10,7 +10,7 @@ checkpoint name, logs/2025-04-19_16-16-17, as PX4's src/modules/mc_raptor/blob/p
 weights are checked (`gru.check_weights`), and the checkpoint's own example is replayed before it
 flies, as mc_raptor's test_policy does (mean absolute difference below 1e-5, or refused).
 
-In the node (`runtime.node`) the policy builds its own observation from the state
+In the node (`autopilot.node`) the policy builds its own observation from the state
 (`own_observation`) and runs at every simulator step, as mc_raptor runs on every gyro update; its
 executor (`core.px4_raptor.Executor`) advances the GRU state on 100 Hz steps: every
 IMU_GYRO_RATEMAX / 100-th call, the gyro rate being the simulator's step rate measured from the

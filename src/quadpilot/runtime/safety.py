@@ -22,16 +22,26 @@ Per call, in order:
 3. Command: a non-finite command hands over to the fallback; a finite one outside [0, 1] is
    clamped and counted (the exported graph clamps already, so this means a foreign graph).
 
-A hand-over latches: the fallback keeps control until `reset()` (a deliberate re-arm), as a
-flight controller's failsafe does; flipping between two controllers every step is worse than
-either. `events` counts every reason, `source` says who flew the last step.
+Hand-over and hand-back (simplex): the fallback takes over at once and the policy gets the vehicle
+back once the state has been valid and inside the recovery envelope (RECOVERY_FRACTION of the exit
+envelope's distance and tilt) for HAND_BACK_HOLD_S of consecutive policy ticks; a bad observation
+restarts that time. The recovery envelope is smaller than the exit envelope so that a vehicle at the
+edge of the exit envelope does not switch controllers every step. What still latches until
+`reset()` (a deliberate re-arm), and why: a non-finite command (the policy itself computed
+nonsense: nothing says it will not again), and the MAX_ENVELOPE_EXITS-th envelope exit of one
+flight (a policy that keeps leaving its envelope does not fly this vehicle). Every hand-over and
+hand-back is counted in `events` (`fallback_engaged`, `handed_back`, `fallback_latched`) and
+queued in `transitions` for whoever logs them (`autopilot.node`). `source` says who flew the last
+step: "policy", "fallback", or "recovering" (the fallback, after bad input, while the hand-back
+time runs inside the recovery envelope: the price of the hand-back rule, not a failure of the
+policy; `sitl_node` does not count those steps against the flight).
 """
 
 from __future__ import annotations
 
 import math
 import operator
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +49,25 @@ import numpy as np
 from quadpilot.core.params import NUM_MOTORS
 
 from .policy import Policy
+
+HAND_BACK_HOLD_S = 0.2
+"""s of consecutive valid observations inside the recovery envelope before the policy flies again.
+The fallback's attitude loop closes at about 19 rad/s on the seed vehicle (`runtime.fallback`,
+`FallbackGains`: a time constant near 0.05 s), so 0.2 s is four of its time constants: the attitude
+transient of the hand-over has decayed to a few per cent, and a vehicle merely passing through the
+recovery envelope (at 12.5 m/s it crosses the hover policy's 2.5 m radius in 0.2 s) is not handed
+back. It also bounds switching to 5 Hz. Longer holds cost flight time for nothing after a single
+dropped packet (1 in 50 states bad leaves the policy 29 of every 50 steps with 0.2 s)."""
+RECOVERY_FRACTION = 0.5
+"""The recovery envelope: this fraction of the exit envelope's distance and tilt (for the hover
+policy 2.5 m and 30°, against 5 m and 60°). It holds the training start distribution (within 1 m and
+±20° of roll and pitch, `train.envs.EnvConfig`) with margin, and the gap to the exit envelope is the
+hysteresis that keeps a vehicle at the edge from switching every step."""
+MAX_ENVELOPE_EXITS = 3
+"""The third envelope exit of one flight latches the fallback: a policy that keeps leaving the
+envelope it was trained in does not fly this vehicle."""
+BAD_INPUT = "input"
+"""`SafetyMonitor` hand-over cause: a bad observation or a dropped state (flown blind)."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +101,7 @@ class ObservationLimits:
 
 
 class SafetyMonitor:
-    """Wraps a runtime policy (any backend) with checks and a latched classical fallback."""
+    """Wraps a runtime policy (any backend) with checks and a classical fallback that hands back."""
 
     def __init__(self, policy: Policy, fallback=None, limits: ObservationLimits | None = None) -> None:
         from .fallback import FallbackController
@@ -101,13 +130,30 @@ class SafetyMonitor:
         max_tilt = math.radians(float(info.envelope["max_tilt_deg"]))  # in (0°, 90°): read_model checks
         self._sin_max_tilt = math.sin(max_tilt)
         self._cos2_max_tilt = math.cos(max_tilt) ** 2
+        self._max_dist_sq_back = (RECOVERY_FRACTION * float(info.envelope["max_distance_m"])) ** 2
+        tilt_back = RECOVERY_FRACTION * max_tilt
+        self._sin_tilt_back, self._cos2_tilt_back = math.sin(tilt_back), math.cos(tilt_back) ** 2
+        self.hold_ticks = max(1, math.ceil(HAND_BACK_HOLD_S / float(info.control_period_s) - 1e-9))
+        self.transitions: deque[tuple[str, str]] = deque(maxlen=256)
+        """("hand-over" | "hand-back" | "latched", why), oldest first, for the caller to log and clear
+        (bounded: a caller that never reads them keeps only the last 256)."""
         self.events: Counter[str] = Counter()
         self.source = "policy"
-        self._latched = False
+        self._engaged = False  # the fallback flies
+        self._latched = False  # ... until reset()
+        self._cause = BAD_INPUT  # why it was engaged: BAD_INPUT or the policy's reason
+        self._inside = 0  # consecutive ticks valid and inside the recovery envelope
+        self._exits = 0  # envelope exits this flight
         self._hover = np.full(NUM_MOTORS, info.vehicle.hover_command, np.float32)
 
     @property
     def in_fallback(self) -> bool:
+        """The fallback has the vehicle (for now, or latched)."""
+        return self._engaged
+
+    @property
+    def latched(self) -> bool:
+        """The fallback keeps the vehicle until `reset()`."""
         return self._latched
 
     def reset(self) -> None:
@@ -115,21 +161,29 @@ class SafetyMonitor:
         integrators cleared. Event counts are kept (they are a log, not a state)."""
         self.policy.reset()
         self.fallback.reset()
-        self._latched = False
+        self._engaged = self._latched = False
+        self._inside = self._exits = 0
+        self.transitions.clear()
         self.source = "policy"
 
-    def _outside_envelope(self, vals: list) -> bool:
+    def _outside_envelope(self, vals: list, recovery: bool = False) -> bool:
+        """Beyond the exit envelope (or, `recovery`, the smaller recovery envelope)."""
+        max_dist_sq, sin_tilt, cos2_tilt = (
+            (self._max_dist_sq_back, self._sin_tilt_back, self._cos2_tilt_back)
+            if recovery
+            else (self._max_dist_sq, self._sin_max_tilt, self._cos2_max_tilt)
+        )
         p = self._pos
         e0, e1, e2 = vals[p], vals[p + 1], vals[p + 2]
-        if e0 * e0 + e1 * e1 + e2 * e2 > self._max_dist_sq:
+        if e0 * e0 + e1 * e1 + e2 * e2 > max_dist_sq:
             return True
         # ZYX Euler as in core.frames (the angles training terminated on): pitch = −asin(R31), and
         # roll = atan2(R32, R33) with (R32, R33) = cos(pitch)·(sin roll, cos roll), so
         # |roll| ≤ θ ⟺ R33 ≥ 0 and R33² ≥ cos²θ·(R32² + R33²), without a trigonometric call
-        if abs(vals[self._r31]) > self._sin_max_tilt:
+        if abs(vals[self._r31]) > sin_tilt:
             return True
         r32, r33 = vals[self._r32], vals[self._r33]
-        return r33 < 0.0 or r33 * r33 < self._cos2_max_tilt * (r32 * r32 + r33 * r33)
+        return r33 < 0.0 or r33 * r33 < cos2_tilt * (r32 * r32 + r33 * r33)
 
     def _not_a_rotation(self, vals: list) -> bool:
         """The observation's attitude block (row-major R) is no rotation within `rot_orthonormal`.
@@ -149,21 +203,37 @@ class SafetyMonitor:
     def blind(self, reason: str) -> np.ndarray:
         """The command for a step with nothing trustworthy to fly on (a bad observation, or a state
         the node had to drop): hover thrust on every motor, no moment. Counted under `reason` and
-        in `blind_steps`; hands over to the fallback (latched) like every bad observation."""
-        self._hand_over(reason)
+        in `blind_steps`; hands over to the fallback like every bad observation, and restarts the
+        hand-back time."""
+        self._hand_over(reason, BAD_INPUT)
+        self._inside = 0
         self.events["blind_steps"] += 1
         self.source = "fallback"
         return self._hover.copy()
 
-    def _hand_over(self, reason: str) -> None:
+    def _hand_over(self, reason: str, cause: str, latch: bool = False) -> None:
         self.events[reason] += 1
-        if not self._latched:
-            self._latched = True
+        if not self._engaged:
+            self._engaged, self._cause, self._inside = True, cause, 0
             self.events["fallback_engaged"] += 1
+            self.transitions.append(("hand-over", reason))
+        if latch and not self._latched:
+            self._latched = True
+            self.events["fallback_latched"] += 1
+            self.transitions.append(("latched", reason))
 
-    def _fly_fallback(self, obs: np.ndarray) -> np.ndarray:
+    def _hand_back(self) -> None:
+        """The policy flies again: its recurrent state (stale by the fallback's steps) and the
+        fallback's integrators are cleared, as for a new flight."""
+        self.policy.reset()
+        self.fallback.reset()
+        self._engaged, self._inside = False, 0
+        self.events["handed_back"] += 1
+        self.transitions.append(("hand-back", f"{HAND_BACK_HOLD_S:g} s in recovery envelope"))  # fits STATUSTEXT
+
+    def _fly_fallback(self, obs: np.ndarray, source: str = "fallback") -> np.ndarray:
         self.events["fallback_steps"] += 1
-        self.source = "fallback"
+        self.source = source
         cmd = np.asarray(self.fallback.act(obs), np.float32)
         if not np.all(np.isfinite(cmd)):  # belt and braces: never send NaN (PX4 reads it as stop)
             self.events["fallback_nonfinite"] += 1
@@ -182,10 +252,17 @@ class SafetyMonitor:
                     return self.blind("obs_out_of_range" if math.isfinite(v) else "obs_nonfinite")
         if self._not_a_rotation(vals):
             return self.blind("obs_not_rotation")
-        if self._latched:
-            return self._fly_fallback(obs)
+        if self._engaged:
+            if self._latched or self._outside_envelope(vals, recovery=True):
+                self._inside = 0
+                return self._fly_fallback(obs)
+            self._inside += 1
+            if self._inside <= self.hold_ticks:
+                return self._fly_fallback(obs, "recovering" if self._cause == BAD_INPUT else "fallback")
+            self._hand_back()  # and the policy flies this step
         if self._outside_envelope(vals):
-            self._hand_over("out_of_envelope")
+            self._exits += 1
+            self._hand_over("out_of_envelope", "out_of_envelope", latch=self._exits >= MAX_ENVELOPE_EXITS)
             return self._fly_fallback(obs)
         cmd = self._policy_act(obs)
         self.source = "policy"
@@ -195,7 +272,7 @@ class SafetyMonitor:
         else:
             return cmd
         if not np.isfinite(cmd).all():
-            self._hand_over("command_nonfinite")
+            self._hand_over("command_nonfinite", "command_nonfinite", latch=True)
             return self._fly_fallback(obs)
         self.events["command_clamped"] += 1
         return np.clip(cmd, 0.0, 1.0)

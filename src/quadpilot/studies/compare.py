@@ -255,9 +255,12 @@ def _check_args(args) -> None:
             raise UsageError(f"--seeds: {bad} are not seeds; expected integers ≥ 0")
         check_out_dir(Path(args.out))
     else:
+        from quadpilot.console import input_path_problem
+
         for d in args.sweeps:
-            if not Path(d).is_dir():
-                raise UsageError(f"{d}: not a directory; expected a sweep directory written by quad-compare run")
+            why = input_path_problem(d, "a sweep directory written by quad-compare run", directory=True)
+            if why is not None:
+                raise UsageError(why)
         check_out_dir(Path(args.figures), "--figures")
         from quadpilot.console import check_output_path
 

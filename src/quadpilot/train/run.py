@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import platform
 import shlex
 import signal
@@ -178,6 +179,18 @@ class Stop:
 # --- the run directory -----------------------------------------------------------------------
 
 
+def _check_name(out: Path, flag: str = "--out") -> None:
+    """UsageError if the OS refuses the name itself (too long, through a file, a loop of links)."""
+    from quadpilot.console import os_reason
+
+    try:
+        os.stat(out)
+    except FileNotFoundError:
+        pass
+    except OSError as e:
+        raise UsageError(f"{flag} {out}: {os_reason(e)}") from None
+
+
 def check_out_dir(out: Path, flag: str = "--out") -> None:
     """UsageError unless `out` is a directory this process could create or write in (checked before
     any work: a path through a file, under /proc, or in a read-only place is refused up front)."""
@@ -185,6 +198,7 @@ def check_out_dir(out: Path, flag: str = "--out") -> None:
 
     if not str(out):
         raise UsageError(f"{flag}: empty path")
+    _check_name(out, flag)
     if out.exists() and not out.is_dir():
         raise UsageError(f"{flag} {out}: exists and is not a directory")
     existing = out
@@ -198,6 +212,7 @@ def check_out_dir(out: Path, flag: str = "--out") -> None:
 
 def _check_fresh_dir(out: Path) -> None:
     """A fresh run needs --out to be new or empty, and not in use by another run."""
+    _check_name(out)
     if out.is_dir():
         check_run_dir_free(out)  # RunDirBusy: exit 1, before anything else is looked at
         if holds_run_files(out):
@@ -231,6 +246,7 @@ def _claim_fresh_dir(out: Path) -> None:
 
 def _check_resume_dir(out: Path) -> None:
     """--resume needs a run directory with a checkpoint that no other run holds; takes its lock."""
+    _check_name(out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--resume: {out} is not a directory; --out names the run directory")
     if not out.is_dir() or not has_checkpoint(out):
