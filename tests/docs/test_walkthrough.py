@@ -19,9 +19,9 @@ REF_RE = re.compile(rf"(?<![\w./-])({_PATH})::([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)"
 # The core components the walkthrough must explain.
 REQUIRED_REFS = {
     "src/quadpilot/train/gae.py::compute_gae",
-    "src/quadpilot/train/ppo.py::PPO.collect",
+    "src/quadpilot/train/ppo.py::FeedForwardPPO.collect",
     "src/quadpilot/train/ppo.py::PPO.update",
-    "src/quadpilot/train/ppo.py::PPOConfig",
+    "src/quadpilot/train/ppo_config.py::PPOConfig",
     "src/quadpilot/train/networks.py::ActorCritic",
     "src/quadpilot/train/networks.py::ActorCritic.distribution",
     "src/quadpilot/core/normalize.py::RunningMeanStd",
@@ -163,7 +163,7 @@ def test_the_checker_notices_a_rename(tmp_path):
 
 def _ppo_defaults() -> dict[str, object]:
     """PPOConfig's field defaults, read from the source with ast (the `fast` preset overrides none)."""
-    tree = ast.parse((ROOT / "src/quadpilot/train/ppo.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "src/quadpilot/train/ppo_config.py").read_text(encoding="utf-8"))
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "PPOConfig")
     fields = {
         s.target.id: ast.literal_eval(s.value)

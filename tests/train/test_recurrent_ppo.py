@@ -17,6 +17,7 @@ from quadpilot.train.evaluate import evaluate
 from quadpilot.train.history import History, HistoryVectorEnv, history_dim
 from quadpilot.train.networks import RecurrentActorCritic
 from quadpilot.train.ppo import PPO, PPOConfig
+from quadpilot.train.rollout import minibatches
 
 
 def same(a: dict, b: dict) -> bool:
@@ -52,7 +53,7 @@ def test_sequences_are_consecutive_steps_of_one_drone():
 def test_minibatches_are_whole_sequences_each_used_once_per_epoch():
     g = torch.Generator().manual_seed(0)
     usable = torch.tensor([0, 1, 2, 4, 5, 6, 7, 9])  # 3 and 8 were not finite
-    groups = recurrent_ppo.sequence_minibatches(usable, 3, g)
+    groups = minibatches(usable, 3, g)
     assert [len(x) for x in groups] == [3, 3]  # the remainder of 2 is dropped, as for transitions
     flat = torch.cat(groups).tolist()
     assert len(set(flat)) == 6 and set(flat) <= set(usable.tolist())

@@ -53,8 +53,8 @@ from .checks import (
     short,
 )
 from .envs import EnvConfig
+from .policy_actor import DeterministicActor
 from .ppo import PPO, PPOConfig
-from .recurrent_ppo import DeterministicActor
 from .sac import SAC
 from .trainer import LATEST, PREVIOUS, Trainer
 
