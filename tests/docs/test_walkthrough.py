@@ -28,7 +28,7 @@ REQUIRED_REFS = {
 }
 # Every file the walkthrough is asked to cover must be referenced at least once.
 REQUIRED_FILES = {
-    *(f"src/quadpilot/train/{n}.py" for n in ("networks", "gae", "ppo", "envs", "checkpoint", "runlog")),
+    *(f"src/quadpilot/train/{n}.py" for n in ("networks", "gae", "ppo", "envs", "runs/checkpoint", "runs/runlog")),
     *(f"src/quadpilot/train/{n}.py" for n in ("evaluate", "curriculum")),
     *(f"src/quadpilot/core/{n}.py" for n in ("dynamics", "observation", "reward", "normalize")),
 }
@@ -125,7 +125,7 @@ def test_the_core_components_are_named():
 
 
 def test_the_metrics_columns_the_diagnosis_reads_exist():
-    tree = ast.parse((ROOT / "src/quadpilot/train/runlog.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "src/quadpilot/train/runs/runlog.py").read_text(encoding="utf-8"))
     node = _defined_here(tree.body, "COLUMNS")
     assert isinstance(node, ast.Assign), "runlog.COLUMNS is no longer a plain assignment"
     columns = set(ast.literal_eval(node.value))

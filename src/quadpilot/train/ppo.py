@@ -26,7 +26,7 @@ epochs and minibatches, the bootstrap and GAE at the end of a rollout, the check
 dict under fixed names (docs/architecture.md style rule 5); the run loop (`runs.loop`) decides
 where they go. approx_kl uses the (r − 1) − log r estimator (Schulman, "Approximating KL
 Divergence", 2020), unbiased and never negative. What PPO shares with SAC (the
-episode log, the checkpoint layout, the files) is `trainer.Trainer`'s.
+episode log, the checkpoint layout, the files) is `runs.trainer.Trainer`'s.
 """
 
 from __future__ import annotations
@@ -39,8 +39,7 @@ import torch
 
 from quadpilot.core.normalize import RunningMeanStd
 
-from . import runlog, trainer
-from .checks import rms_state, tensor
+from . import plotting
 from .envs import EnvConfig, QuadVectorEnv
 from .gae import bootstrapped_gae
 from .history import HistoryVectorEnv, network_input_dim
@@ -51,6 +50,8 @@ from .ppo_config import PRESETS, UPDATE_PATHS, PPOConfig
 from .ppo_loss import gradient_step
 from .recurrent_ppo import STATE_KEYS, finite_sequences, forward, initial_rollout_state, to_sequences
 from .rollout import RolloutBuffer, UpdateStats, minibatches
+from .runs import runlog, trainer
+from .runs.checks import rms_state, tensor
 
 __all__ = [
     "PPO",
@@ -67,7 +68,7 @@ NonFiniteError = trainer.NonFiniteError  # every algorithm's; named here, where 
 
 
 class PPO(trainer.Trainer):
-    """The PPO trainer: environment, actor-critic, optimiser, normaliser and RNGs (`trainer.Trainer`
+    """The PPO trainer: environment, actor-critic, optimiser, normaliser and RNGs (`runs.trainer.Trainer`
     has what it shares with SAC: the episode log, the checkpoint layout, the files).
 
     `PPO(cfg, env_cfg)` is an instance of the variant `cfg` names (see the module docstring); a
@@ -163,7 +164,7 @@ class PPO(trainer.Trainer):
         self.obs_rms.load_state_dict(rms_state(ckpt["obs_rms"]))
 
     def plot_curves(self, metrics_path, out_path, title: str, radii: tuple[float, ...]):
-        return runlog.plot_curves(metrics_path, out_path, title, radii)
+        return plotting.plot_curves(metrics_path, out_path, title, radii)
 
     def _norm(self, raw: np.ndarray) -> np.ndarray:
         return self.obs_rms.normalize(raw) if self.cfg.normalize_obs else raw.astype(np.float32)
