@@ -29,7 +29,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from baseline import BASELINE_COMMIT, REPO, baseline_src, run_python
-from quadpilot.train.run import machine
+from quadpilot.train.runs.loop import machine
 
 TRAIN = "import sys; from quadpilot.train.cli import main; sys.exit(main(sys.argv[1:]))"
 

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from quadpilot.train.cli import main as train
-from quadpilot.train.run import machine
+from quadpilot.train.runs.loop import machine
 
 TOTAL_STEPS = 2_000_000
 

@@ -364,7 +364,7 @@ ALLOWED: tuple[tuple[str, str], ...] = (
         "STM32F4's clock",
     ),
     (r"\bup\s+to\s+500\s+µs", "the lockstep spin window (link.spin.LOCKSTEP_SPIN_S, --spin-us)"),
-    (r"\b95\s+%", "the success bar: 95 % of 100 evaluation episodes (train.run.SUCCESS_BAR)"),
+    (r"\b95\s+%", "the success bar: 95 % of 100 evaluation episodes (train.runs.loop.SUCCESS_BAR)"),
     (
         r"last\s+2\s+s|\b5\s+s\s+episode|episodes\s+of\s+5\s+s|\b5\s+cm\b(?!/)",
         "the hover success definition (core.mission): mean error over the last 2 s of a 5 s episode within 5 cm",

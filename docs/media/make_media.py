@@ -73,8 +73,8 @@ def curves(run_dir: Path, out: Path) -> None:
     from matplotlib.figure import Figure
 
     from quadpilot.studies.learning_montage import nearest_snapshots, parse_steps
-    from quadpilot.train.checkpoint import list_snapshots
-    from quadpilot.train.runlog import read_metrics
+    from quadpilot.train.runs.checkpoint import list_snapshots
+    from quadpilot.train.runs.runlog import read_metrics
 
     print(f"# learning curves of {run_dir} → {out}")
     m = read_metrics(run_dir / "metrics.csv")

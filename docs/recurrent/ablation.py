@@ -29,8 +29,8 @@ import numpy as np
 import torch
 
 from quadpilot.core.sensor_noise import get_sensor_noise
-from quadpilot.train.checkpoint import load_policy
 from quadpilot.train.evaluate import evaluate
+from quadpilot.train.runs.checkpoint import load_policy
 
 CONDITIONS = {
     "trained: noise, τ 30 ms": {"noise": 1.0, "tau": 0.03},

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from quadpilot.train.envs import make_config
     from quadpilot.train.evaluate import evaluate
     from quadpilot.train.ppo import PPO, NonFiniteError, PPOConfig
-    from quadpilot.train.runlog import MetricsLog, write_json
+    from quadpilot.train.runs.runlog import MetricsLog, write_json
 
     overrides = {"threads": 1, "total_steps": args.total_steps, **_parse_sets(args.set)}
     out = Path(args.out)
@@ -103,7 +103,7 @@ def plot(args: argparse.Namespace) -> int:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from quadpilot.train.runlog import read_metrics
+    from quadpilot.train.runs.runlog import read_metrics
 
     runs = []
     for item in args.runs:

@@ -12,7 +12,7 @@ import numpy as np
 from quadpilot.console import Parser, run_command
 from quadpilot.console import int_in as _int_in
 
-MAX_ENVS = 1 << 16  # quad-train's bound (train.checks.MAX_ENVS): 65 536 drones are ~5 MB of state
+MAX_ENVS = 1 << 16  # quad-train's bound (train.runs.checks.MAX_ENVS): 65 536 drones are ~5 MB of state
 MAX_STEPS = 1_000_000
 
 

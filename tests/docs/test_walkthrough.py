@@ -19,16 +19,16 @@ REF_RE = re.compile(rf"(?<![\w./-])({_PATH})::([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)"
 # The core components the walkthrough must explain.
 REQUIRED_REFS = {
     "src/quadpilot/train/gae.py::compute_gae",
-    "src/quadpilot/train/ppo.py::PPO.collect",
+    "src/quadpilot/train/ppo.py::FeedForwardPPO.collect",
     "src/quadpilot/train/ppo.py::PPO.update",
-    "src/quadpilot/train/ppo.py::PPOConfig",
+    "src/quadpilot/train/ppo_config.py::PPOConfig",
     "src/quadpilot/train/networks.py::ActorCritic",
     "src/quadpilot/train/networks.py::ActorCritic.distribution",
     "src/quadpilot/core/normalize.py::RunningMeanStd",
 }
 # Every file the walkthrough is asked to cover must be referenced at least once.
 REQUIRED_FILES = {
-    *(f"src/quadpilot/train/{n}.py" for n in ("networks", "gae", "ppo", "envs", "checkpoint", "runlog")),
+    *(f"src/quadpilot/train/{n}.py" for n in ("networks", "gae", "ppo", "envs", "runs/checkpoint", "runs/runlog")),
     *(f"src/quadpilot/train/{n}.py" for n in ("evaluate", "curriculum")),
     *(f"src/quadpilot/core/{n}.py" for n in ("dynamics", "observation", "reward", "normalize")),
 }
@@ -125,7 +125,7 @@ def test_the_core_components_are_named():
 
 
 def test_the_metrics_columns_the_diagnosis_reads_exist():
-    tree = ast.parse((ROOT / "src/quadpilot/train/runlog.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "src/quadpilot/train/runs/runlog.py").read_text(encoding="utf-8"))
     node = _defined_here(tree.body, "COLUMNS")
     assert isinstance(node, ast.Assign), "runlog.COLUMNS is no longer a plain assignment"
     columns = set(ast.literal_eval(node.value))
@@ -163,7 +163,7 @@ def test_the_checker_notices_a_rename(tmp_path):
 
 def _ppo_defaults() -> dict[str, object]:
     """PPOConfig's field defaults, read from the source with ast (the `fast` preset overrides none)."""
-    tree = ast.parse((ROOT / "src/quadpilot/train/ppo.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "src/quadpilot/train/ppo_config.py").read_text(encoding="utf-8"))
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "PPOConfig")
     fields = {
         s.target.id: ast.literal_eval(s.value)

@@ -29,9 +29,9 @@ from quadpilot.export.onnx_export import _step_sequences, parity_observations, p
 from quadpilot.runtime.cbackend import find_compiler
 from quadpilot.runtime.cgen import ENTRY, RESET, STEP, bench_source, operation_count
 from quadpilot.runtime.model import read_model
-from quadpilot.train.checkpoint import load_checkpoint, load_policy, save_untrained_policy
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
+from quadpilot.train.runs.checkpoint import load_checkpoint, load_policy, save_untrained_policy
 
 MODELS = Path(__file__).parents[2] / "models"
 COMPILER = find_compiler()

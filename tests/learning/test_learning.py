@@ -37,7 +37,7 @@ import torch
 from quadpilot.train.envs import make_config
 from quadpilot.train.evaluate import evaluate
 from quadpilot.train.ppo import PPO, PRESETS, PPOConfig
-from quadpilot.train.run import SUCCESS_BAR
+from quadpilot.train.runs.loop import SUCCESS_BAR
 from quadpilot.train.sac import SAC, SACConfig
 
 SEED = 0

@@ -29,7 +29,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from quadpilot.train.run import SUCCESS_BAR
+from quadpilot.train.runs.loop import SUCCESS_BAR
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "models"

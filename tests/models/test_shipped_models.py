@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from quadpilot.train.checkpoint import load_policy
 from quadpilot.train.evaluate import evaluate
+from quadpilot.train.runs.checkpoint import load_policy
 
 MODELS = Path(__file__).parents[2] / "models"
 EPISODES = 50

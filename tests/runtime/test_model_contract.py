@@ -408,9 +408,9 @@ def test_altered_weights_are_refused_by_every_backend_independently(tmp_path):
 def lstm_onnx(tmp_path_factory):
     pytest.importorskip("torch")
     from quadpilot.export.onnx_export import export_onnx
-    from quadpilot.train.checkpoint import save_untrained_policy
     from quadpilot.train.envs import make_config
     from quadpilot.train.ppo import PPOConfig
+    from quadpilot.train.runs.checkpoint import save_untrained_policy
 
     d = tmp_path_factory.mktemp("lstm")
     pt = save_untrained_policy(d / "policy.pt", PPOConfig(arch="lstm"), make_config("hover"))

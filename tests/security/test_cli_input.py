@@ -33,10 +33,10 @@ import pytest
 import torch
 
 from quadpilot.export.onnx_export import supported_opsets
-from quadpilot.train.checkpoint import LATEST, checkpoint_dict, policy_checkpoint_dict
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
-from quadpilot.train.runlog import LOCK
+from quadpilot.train.runs.checkpoint import LATEST, checkpoint_dict, policy_checkpoint_dict
+from quadpilot.train.runs.runlog import LOCK
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
@@ -54,7 +54,10 @@ ENTRY = {
 PRELOAD = [
     *sorted({e.split(":")[0] for e in ENTRY.values()}),
     *("torch", "torch._dynamo", "onnx", "onnxruntime", "gymnasium", "rich.progress", "matplotlib.backends.backend_agg"),
-    *("quadpilot.train." + m for m in ("ppo", "checkpoint", "envs", "curriculum", "evaluate", "runlog", "sac")),
+    *(
+        "quadpilot.train." + m
+        for m in ("ppo", "runs.checkpoint", "envs", "curriculum", "evaluate", "runs.runlog", "sac")
+    ),
     *("quadpilot.export.onnx_export", "quadpilot.export.c_export", "quadpilot.firmware_sim.sim", "quadpilot.viz"),
     *("quadpilot.runtime", "quadpilot.autopilot.node", "quadpilot.link.tlog", "quadpilot.core.mission"),
 ]

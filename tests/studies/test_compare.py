@@ -11,7 +11,7 @@ import pytest
 
 from quadpilot.studies import compare, compare_report
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.runlog import MetricsLog, write_json
+from quadpilot.train.runs.runlog import MetricsLog, write_json
 
 
 @pytest.mark.skipif(importlib.util.find_spec("ray") is not None, reason="Ray is installed here")

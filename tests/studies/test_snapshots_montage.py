@@ -10,7 +10,10 @@ import torch
 
 from quadpilot.studies.learning_montage import flight_config, fly, pick_snapshots, steps_text
 from quadpilot.studies.learning_montage import main as montage
-from quadpilot.train.checkpoint import (
+from quadpilot.train.cli import main as train
+from quadpilot.train.envs import make_config
+from quadpilot.train.ppo import PPOConfig
+from quadpilot.train.runs.checkpoint import (
     SNAPSHOTS,
     list_snapshots,
     load_checkpoint,
@@ -18,9 +21,6 @@ from quadpilot.train.checkpoint import (
     save_untrained_policy,
     snapshot_path,
 )
-from quadpilot.train.cli import main as train
-from quadpilot.train.envs import make_config
-from quadpilot.train.ppo import PPOConfig
 
 BATCH = 64 * 16  # transitions per update with TINY
 TINY = ["--num-envs", "64", "--rollout-steps", "16", "--threads", "1", "--eval-episodes", "0", "--eval-every", "0"]

@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from quadpilot.console import atomic_write
-from quadpilot.train.checkpoint import (
+from quadpilot.train.envs import make_config
+from quadpilot.train.ppo import PPO, PPOConfig
+from quadpilot.train.runs.checkpoint import (
     LATEST,
     PREVIOUS,
     SCHEMA,
@@ -20,8 +22,6 @@ from quadpilot.train.checkpoint import (
     save_checkpoint,
     save_for_resume,
 )
-from quadpilot.train.envs import make_config
-from quadpilot.train.ppo import PPO, PPOConfig
 
 TINY = PPOConfig(num_envs=16, rollout_steps=16, minibatch_size=64, epochs=2, threads=1, seed=7)
 
@@ -218,7 +218,7 @@ def test_load_policy_acts_like_the_trainer(tmp_path, normalize_obs):
     deterministic actions bit for bit, with and without the observation normaliser."""
     import dataclasses
 
-    from quadpilot.train.checkpoint import load_policy
+    from quadpilot.train.runs.checkpoint import load_policy
 
     cfg = dataclasses.replace(TINY, normalize_obs=normalize_obs)
     ppo = PPO(cfg, make_config("circle", episode_steps=24))
@@ -233,7 +233,7 @@ def test_load_policy_acts_like_the_trainer(tmp_path, normalize_obs):
 
 
 def test_load_policy_refuses_an_unknown_layout(tmp_path):
-    from quadpilot.train.checkpoint import TrainedPolicy, checkpoint_dict
+    from quadpilot.train.runs.checkpoint import TrainedPolicy, checkpoint_dict
 
     ckpt = checkpoint_dict(tiny("hover"))
     ckpt["obs_layout"] = {**ckpt["obs_layout"], "name": "quadpilot.obs.hover/999"}

@@ -13,9 +13,9 @@ import time
 import pytest
 import torch
 
-from quadpilot.train.checkpoint import LATEST, PREVIOUS, load_checkpoint, load_for_resume
 from quadpilot.train.cli import main
-from quadpilot.train.runlog import COLUMNS, HEADER
+from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS, load_checkpoint, load_for_resume
+from quadpilot.train.runs.runlog import COLUMNS, HEADER
 
 BATCH = 64 * 16  # transitions per update with TINY
 TINY = ["--num-envs", "64", "--rollout-steps", "16", "--threads", "1", "--eval-episodes", "8"]

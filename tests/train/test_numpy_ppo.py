@@ -13,10 +13,10 @@ import math
 import pytest
 import torch
 
-from quadpilot.train.checkpoint import LATEST, load_checkpoint
 from quadpilot.train.cli import main
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
+from quadpilot.train.runs.checkpoint import LATEST, load_checkpoint
 
 TOL = 1e-5
 # per seed: network widths and observation history, so the check covers more than the default shape

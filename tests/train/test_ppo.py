@@ -7,7 +7,7 @@ import torch
 
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PRESETS, NonFiniteError, PPOConfig
-from quadpilot.train.runlog import COLUMNS
+from quadpilot.train.runs.runlog import COLUMNS
 
 TINY = {"num_envs": 16, "rollout_steps": 16, "minibatch_size": 64, "epochs": 2, "threads": 1, "seed": 3}
 METRICS = (

@@ -11,12 +11,13 @@ import pytest
 import torch
 
 from quadpilot.train import recurrent_ppo
-from quadpilot.train.checkpoint import checkpoint_dict, load_policy, ppo_from_checkpoint, save_checkpoint
 from quadpilot.train.envs import QuadVectorEnv, make_config
 from quadpilot.train.evaluate import evaluate
 from quadpilot.train.history import History, HistoryVectorEnv, history_dim
 from quadpilot.train.networks import RecurrentActorCritic
 from quadpilot.train.ppo import PPO, PPOConfig
+from quadpilot.train.rollout import minibatches
+from quadpilot.train.runs.checkpoint import checkpoint_dict, load_policy, ppo_from_checkpoint, save_checkpoint
 
 
 def same(a: dict, b: dict) -> bool:
@@ -52,7 +53,7 @@ def test_sequences_are_consecutive_steps_of_one_drone():
 def test_minibatches_are_whole_sequences_each_used_once_per_epoch():
     g = torch.Generator().manual_seed(0)
     usable = torch.tensor([0, 1, 2, 4, 5, 6, 7, 9])  # 3 and 8 were not finite
-    groups = recurrent_ppo.sequence_minibatches(usable, 3, g)
+    groups = minibatches(usable, 3, g)
     assert [len(x) for x in groups] == [3, 3]  # the remainder of 2 is dropped, as for transitions
     flat = torch.cat(groups).tolist()
     assert len(set(flat)) == 6 and set(flat) <= set(usable.tolist())
@@ -125,7 +126,7 @@ def test_resumed_training_continues_bit_for_bit(tmp_path, kw):
     for _ in range(2):
         straight.iterate()
     save_checkpoint(tmp_path / "c.pt", straight)
-    from quadpilot.train.checkpoint import load_checkpoint
+    from quadpilot.train.runs.checkpoint import load_checkpoint
 
     resumed = ppo_from_checkpoint(load_checkpoint(tmp_path / "c.pt"))
     for _ in range(2):
@@ -208,7 +209,7 @@ def test_history_policy_trains_evaluates_and_refuses_export(tmp_path):
         evaluate(policy, policy.env_config, episodes=4), evaluate(ppo.act_deterministic, ppo.env_cfg, episodes=4)
     )
     from quadpilot.export.onnx_export import deployable
-    from quadpilot.train.checkpoint import CheckpointError
+    from quadpilot.train.runs.checkpoint import CheckpointError
 
     with pytest.raises(CheckpointError, match="in-process only"):
         deployable(policy)

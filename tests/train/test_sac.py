@@ -17,9 +17,9 @@ from quadpilot.export.cli import main as export_main
 from quadpilot.export.onnx_export import check_parity, export_onnx, reference_commands
 from quadpilot.runtime.backends import load_policy as load_runtime_policy
 from quadpilot.runtime.model import read_model
-from quadpilot.train.checkpoint import LATEST, PREVIOUS, load_checkpoint, load_policy
 from quadpilot.train.cli import main
 from quadpilot.train.envs import make_config
+from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS, load_checkpoint, load_policy
 from quadpilot.train.sac import (
     HEADER,
     REPLAY_DIR,

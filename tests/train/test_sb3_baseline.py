@@ -22,7 +22,7 @@ from quadpilot.train.cli import main
 from quadpilot.train.envs import EnvConfig, make_config
 from quadpilot.train.networks import ActorCritic
 from quadpilot.train.ppo import PRESETS, PPOConfig
-from quadpilot.train.runlog import HEADER, _json_safe
+from quadpilot.train.runs.runlog import HEADER, _json_safe
 
 TINY = ["--num-envs", "64", "--rollout-steps", "16", "--threads", "1", "--eval-episodes", "8"]
 ODD = PPOConfig(  # nothing at its default where SB3 has a parameter for it
@@ -260,7 +260,8 @@ def test_algo_sb3_refuses_what_it_cannot_do(tmp_path, capsys):
 
 def test_our_ppo_never_imports_sb3():
     code = (
-        "import sys; from quadpilot.train.cli import main; import quadpilot.train.ppo, quadpilot.train.checkpoint; "
+        "import sys; from quadpilot.train.cli import main; "
+        "import quadpilot.train.ppo, quadpilot.train.runs.checkpoint; "
         "main(['--help']); print('stable_baselines3' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

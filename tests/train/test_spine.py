@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 import torch
 
-from quadpilot.train.checkpoint import LATEST, load_checkpoint, load_policy, load_trainer, snapshot_path
 from quadpilot.train.cli import main
 from quadpilot.train.ppo import PPO
+from quadpilot.train.runs.checkpoint import LATEST, load_checkpoint, load_policy, load_trainer, snapshot_path
 from quadpilot.train.sac import SAC
 
 DATA = Path(__file__).parent / "data" / "pre_spine"
@@ -55,7 +55,7 @@ def test_a_checkpoint_written_before_the_spine_resumes_to_the_same_weights(tmp_p
     run = tmp_path / kind
     shutil.copytree(DATA / kind, run)
     agent = load_trainer(run / LATEST)
-    assert type(agent) is (SAC if kind == "sac" else PPO)
+    assert isinstance(agent, SAC if kind == "sac" else PPO)
     assert load_policy(run / LATEST).algo == agent.algo  # the deployable view reads it too
     agent.iterate()
     nets = (agent.actor, agent.critic, agent.critic_target) if kind == "sac" else (agent.model,)

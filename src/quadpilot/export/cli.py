@@ -137,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
 def _failure(e: Exception) -> str | None:
     """The one-line message for an export that failed on its input or its output, None for a bug."""
     from quadpilot.runtime.model import ModelContractError
-    from quadpilot.train.checkpoint import CheckpointError
+    from quadpilot.train.runs.checkpoint import CheckpointError
 
     if isinstance(e, (CheckpointError, ModelContractError)):
         return str(e)

@@ -33,8 +33,8 @@ from quadpilot.console import atomic_write
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
 from quadpilot.core.state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
-from quadpilot.train.checkpoint import CheckpointError, TrainedPolicy, load_checkpoint
 from quadpilot.train.envs import QuadBatch
+from quadpilot.train.runs.checkpoint import CheckpointError, TrainedPolicy, load_checkpoint
 
 ONNX_SCHEMA = "quadpilot.onnx/1"
 INPUT, OUTPUT = "obs", "action"

@@ -136,8 +136,8 @@ def plan(args) -> list[RunSpec]:
 
 
 def cmd_run(args, argv: list[str]) -> int:
-    from quadpilot.train.run import cpu_model
-    from quadpilot.train.runlog import write_json
+    from quadpilot.train.runs.loop import cpu_model
+    from quadpilot.train.runs.runlog import write_json
 
     ray = _import_ray() if args.engine == "ray" else None  # before anything is written
     out = Path(args.out)
@@ -240,8 +240,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _check_args(args) -> None:
     """Every flag value, before anything is trained or written (one line, exit 2)."""
-    from quadpilot.train.checks import MAX_THREADS
-    from quadpilot.train.run import check_out_dir
+    from quadpilot.train.runs.checks import MAX_THREADS
+    from quadpilot.train.runs.loop import check_out_dir
 
     limits = {"threads": MAX_THREADS, "workers": 256, "eval_every": 2**62, "total_steps": 2**62}  # quad-train's
     for name, hi in limits.items():

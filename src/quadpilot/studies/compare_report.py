@@ -43,7 +43,7 @@ class Run:
 
 
 def load_sweep(directory: Path) -> tuple[dict, list[Run]]:
-    from quadpilot.train.runlog import read_metrics
+    from quadpilot.train.runs.runlog import read_metrics
 
     sweep_path = directory / SWEEP
     if not sweep_path.exists():
@@ -95,7 +95,7 @@ def plot_sweep(runs: list[Run], title: str, out_path: Path) -> Path:
     from matplotlib.figure import Figure
 
     from quadpilot.console import atomic_write
-    from quadpilot.train.run import SUCCESS_BAR
+    from quadpilot.train.runs.loop import SUCCESS_BAR
 
     fig = Figure(figsize=(9, 6), layout="constrained")
     FigureCanvasAgg(fig)

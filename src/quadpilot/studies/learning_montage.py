@@ -208,7 +208,7 @@ def _montage(args) -> int:
     import torch
 
     from quadpilot.console import check_output_path
-    from quadpilot.train.checkpoint import CheckpointError, list_snapshots, load_policy
+    from quadpilot.train.runs.checkpoint import CheckpointError, list_snapshots, load_policy
     from quadpilot.viz import VizUnavailable, check_video_output, render_montage
 
     size = _size(args.size)

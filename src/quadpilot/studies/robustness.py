@@ -487,7 +487,7 @@ def _machine() -> dict:
     import os
     import platform
 
-    from quadpilot.train.run import cpu_model
+    from quadpilot.train.runs.loop import cpu_model
 
     return {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__}
 
@@ -518,7 +518,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _study(args) -> int:
-    from quadpilot.train.checkpoint import CheckpointError, load_policy
+    from quadpilot.train.runs.checkpoint import CheckpointError, load_policy
 
     controllers = []
     onnx = {}

@@ -315,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
             from . import sb3_baseline
 
             return sb3_baseline.train_from_cli(args, argv)
-        from .run import train
+        from .runs.loop import train
 
         return train(args, argv)
     except SystemExit as e:  # --help
@@ -333,9 +333,9 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:
         from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError
 
-        from .checks import CheckpointError
-        from .runlog import RunDirBusy
-        from .trainer import NonFiniteError
+        from .runs.checks import CheckpointError
+        from .runs.runlog import RunDirBusy
+        from .runs.trainer import NonFiniteError
 
         if isinstance(e, UnknownVehicleError):  # --vehicle: neither a shipped name nor a file path
             print(f"quad-train: error: --vehicle: {e}", file=sys.stderr)
@@ -345,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         raise
     finally:
-        from .runlog import release_run_dirs
+        from .runs.runlog import release_run_dirs
 
         release_run_dirs()
 

@@ -42,3 +42,22 @@ def compute_gae(
         last = deltas[t] + gamma * lam * not_done[t] * last
         adv[t] = last
     return adv, adv + values
+
+
+def bootstrapped_gae(
+    rewards: np.ndarray,
+    values: np.ndarray,
+    final_values: np.ndarray,
+    terminated: np.ndarray,
+    truncated: np.ndarray,
+    gamma: float,
+    lam: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """GAE over a rollout as it was collected: `values` (T + 1, N) is V(s_0 … s_T), the states the
+    policy saw (after an episode ended, s_{t+1} is the next episode's reset state), and
+    `final_values` (T, N) is V of the final observation where step t was truncated by the time
+    limit. The value after a truncated step is that final value (the bootstrap), never the reset
+    state's; a terminated step takes none (`compute_gae`). Returns (advantages, returns), (T, N)."""
+    next_values = values[1:].copy()
+    next_values[truncated] = final_values[truncated]
+    return compute_gae(rewards, values[:-1], next_values, terminated, truncated, gamma, lam)

@@ -1,7 +1,7 @@
 """quad-train's flags as configurations, for every algorithm: the trainer's configuration (the
 size and seed flags, PPO's preset, --set NAME=VALUE), the environment (--vehicle, --randomize,
 --sensor-noise, --motor-tau) and, on --resume, what the flags ask that the checkpoint's run differs
-in. The run loop (`run`) calls these; the parser is `cli`'s.
+in. The run loop (`runs.loop`) calls these; the parser is `cli`'s.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def upper_bounds() -> dict[str, int]:
     """The largest value of each SIZE_OPTIONS flag: the sizes a checkpoint may describe
     (`checks`), so that a run's own file is never refused, and 64 bits for the seed
     (torch.manual_seed)."""
-    from .checks import MAX_BATCH, MAX_ENVS, MAX_OBS_HISTORY, MAX_THREADS
+    from .runs.checks import MAX_BATCH, MAX_ENVS, MAX_OBS_HISTORY, MAX_THREADS
 
     sizes = {"num_envs": MAX_ENVS, "rollout_steps": MAX_BATCH, "minibatch_size": MAX_BATCH, "bptt_steps": MAX_BATCH}
     return {**sizes, "threads": MAX_THREADS, "obs_history": MAX_OBS_HISTORY, "seed": 2**63 - 1, "total_steps": 2**62}
@@ -98,8 +98,8 @@ def explicit_options(args, algo) -> dict[str, Any]:
 def make_config(algo, explicit: dict, preset: str | None):
     """The configuration of a fresh run: PPO's preset (default fast) under the explicit options;
     SAC's defaults under them. UsageError naming a value the configuration refuses."""
-    from .checks import check_sizes
     from .ppo import PRESETS
+    from .runs.checks import check_sizes
 
     base = PRESETS[preset or "fast"] if algo.algo == "ppo" else {}
     try:

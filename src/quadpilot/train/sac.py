@@ -36,7 +36,7 @@ minibatch 256, γ 0.99 and a critic step every 10 environment steps (0.1 per tra
 
 One row of metrics.csv is one *iteration*: `rollout_steps` vector steps with their gradient steps;
 --eval-every, --checkpoint-every and --snapshot-every count iterations. The run loop, the
-environment options and the checkpoint layout are every algorithm's (`run`, `options`, `trainer`);
+environment options and the checkpoint layout are every algorithm's (`runs.loop`, `options`, `runs.trainer`);
 what SAC adds to a checkpoint is its critics, temperature and replay count, and beside it the
 replay buffer's chunks (`replay`), so a save costs what was added, not the whole buffer.
 """
@@ -56,11 +56,12 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from . import runlog, trainer
-from .checks import CheckpointError, check_count, check_tensor, check_weights, short
+from . import plotting
 from .envs import EnvConfig, QuadVectorEnv
 from .networks import ACTIVATIONS, mlp
 from .replay import ACT_DIM, REPLAY_DIR, ReplayBuffer, load_replay, prune_replay, save_replay_chunk
+from .runs import trainer
+from .runs.checks import CheckpointError, check_count, check_tensor, check_weights, short
 
 LOG2 = math.log(2.0)
 HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -308,7 +309,7 @@ PANELS = (
     *(("ep_return", "episode return"), ("success_rate", "success"), ("q_loss", "critic loss", True)),
     ("alpha", "temperature α", True, ("entropy", "entropy (nats)")),
 )
-"""curves.png's panels (`runlog.plot_curves`)."""
+"""curves.png's panels (`plotting.plot_curves`)."""
 
 
 # --- the trainer ----------------------------------------------------------------------------
@@ -557,4 +558,4 @@ class SAC(trainer.Trainer):
 
     def plot_curves(self, metrics_path, out_path, title: str, radii: tuple[float, ...] = ()) -> Path:
         """curves.png: return, success (training and evaluation), critic loss, α and entropy."""
-        return runlog.plot_curves(metrics_path, out_path, title, radii, COLUMNS, PANELS)
+        return plotting.plot_curves(metrics_path, out_path, title, radii, COLUMNS, PANELS)

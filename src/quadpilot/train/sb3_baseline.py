@@ -381,10 +381,11 @@ def train_from_cli(args, argv: list[str]) -> int:
     PPO, with SB3 doing the learning. No resume (SB3 checkpoints pickle)."""
     from quadpilot.console import UsageError
 
-    from . import options, runlog
+    from . import options, plotting
     from .envs import make_config
     from .ppo import PPO
-    from .run import Progress, Stop, command, evaluate_and_advance, final_evaluation, now, time_breakdown
+    from .runs import runlog
+    from .runs.loop import Progress, Stop, command, evaluate_and_advance, final_evaluation, now, time_breakdown
 
     if args.resume:
         raise UsageError("--resume is not available with --algo sb3 (its runs write no resumable checkpoint)")
@@ -491,7 +492,7 @@ def train_from_cli(args, argv: list[str]) -> int:
     train_s = train_time()
     atomic_write(out / POLICY_FILE, lambda f: torch.save(model.policy.state_dict(), f))
     obs_norm().save(out / OBS_NORM_FILE)
-    runlog.plot_curves(out / "metrics.csv", out / "curves.png", f"{args.task} (SB3 PPO), {out.name}")
+    plotting.plot_curves(out / "metrics.csv", out / "curves.png", f"{args.task} (SB3 PPO), {out.name}")
     if stop.signal is not None and state["updates"] < num_updates:
         print(f"quad-train: stopped by {stop.signal} after update {state['updates']}/{num_updates}", flush=True)
         return 130

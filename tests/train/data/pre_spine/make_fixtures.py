@@ -16,9 +16,9 @@ from pathlib import Path
 
 import torch
 
-from quadpilot.train import checkpoint as ck
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
+from quadpilot.train.runs import checkpoint as ck
 
 
 def digest(*state_dicts) -> str:

@@ -30,7 +30,7 @@ import torch
 
 from quadpilot.console import UsageError
 
-from . import options
+from .. import options
 from .checkpoint import (
     ALGORITHMS,
     POLICY,
@@ -282,7 +282,7 @@ class Run:
 def _curriculum(task: str, agent, state: dict | None = None):
     """The waypoint curriculum of a run (None for the other tasks), restored from `state` (a
     checkpoint's) with the agent's environment set to the radius it had reached."""
-    from .curriculum import CurriculumConfig, WaypointCurriculum
+    from ..curriculum import CurriculumConfig, WaypointCurriculum
 
     if state is None and task != "waypoint":
         return None
@@ -296,8 +296,8 @@ def _curriculum(task: str, agent, state: dict | None = None):
 
 
 def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
-    from .curriculum import CurriculumConfig
-    from .envs import make_config
+    from ..curriculum import CurriculumConfig
+    from ..envs import make_config
 
     _check_fresh_dir(out)
     preset = (args.preset or "fast") if algo.algo == "ppo" else None
@@ -495,7 +495,7 @@ def evaluate_and_advance(agent, args, cur, m: dict, first_success: dict | None) 
     the iteration's episodes. Returns (first_success, seconds spent evaluating), the latter not
     counted as training time. `agent` is anything with updates, global_step, act_deterministic and
     env_cfg (and, with a curriculum, ep_success and env): a trainer, or the SB3 baseline's view."""
-    from .evaluate import evaluate
+    from ..evaluate import evaluate
 
     eval_s = 0.0
     if args.eval_every and agent.updates % args.eval_every == 0:
@@ -525,7 +525,7 @@ def final_evaluation(agent, args, cur, out: Path, meta) -> str:
     """The end-of-run evaluation of `agent` over --eval-episodes episodes, written to eval.json after
     `meta()` (called once the evaluation is done) and the curriculum's final stage; returns the
     summary line's evaluation clause."""
-    from .evaluate import evaluate
+    from ..evaluate import evaluate
 
     result = evaluate(agent.act_deterministic, _eval_config(agent, cur), episodes=args.eval_episodes)
     info = meta()

@@ -52,10 +52,10 @@ from .checks import (
     rms_state,
     short,
 )
-from .envs import EnvConfig
-from .ppo import PPO, PPOConfig
-from .recurrent_ppo import DeterministicActor
-from .sac import SAC
+from ..envs import EnvConfig
+from ..policy_actor import DeterministicActor
+from ..ppo import PPO, PPOConfig
+from ..sac import SAC
 from .trainer import LATEST, PREVIOUS, Trainer
 
 __all__ = ["MAX_BATCH", "MAX_ENVS", "MAX_OBS_HISTORY", "MAX_THREADS", "CheckpointError"]
@@ -195,7 +195,7 @@ def save_untrained_policy(
     re-initialised with `head_gain` (the training init, 0.01, makes every action ≈ 0, which would
     make a parity test blind). For testing and benchmarking export and runtime on architectures
     PPO does not train yet (the LSTM)."""
-    from .networks import build_actor_critic
+    from ..networks import build_actor_critic
 
     torch.manual_seed(seed)
     model = build_actor_critic(env_cfg.layout.dim, 4, ppo_cfg)
@@ -319,8 +319,8 @@ class TrainedPolicy:
         from quadpilot.core.normalize import RunningMeanStd
         from quadpilot.core.observation import get_layout
 
-        from .history import network_input_dim
-        from .networks import build_actor_critic
+        from ..history import network_input_dim
+        from ..networks import build_actor_critic
 
         self.source = source
         self.algo = ckpt.get("algo", "ppo")
@@ -361,7 +361,7 @@ class TrainedPolicy:
         self._act = DeterministicActor(self.model, normalize, self.layout.dim, self.obs_history)
 
     def _sac_actor(self, ckpt: dict):
-        from .sac import SACConfig, build_actor
+        from ..sac import SACConfig, build_actor
 
         self.sac_config = SACConfig.from_json(ckpt["sac_config"])
         return build_actor(self.layout.dim, self.sac_config).eval()

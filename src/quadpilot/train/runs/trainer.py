@@ -1,4 +1,4 @@
-"""The trainer every algorithm is: what the run loop (`run`) drives and what a checkpoint holds.
+"""The trainer every algorithm is: what the run loop (`loop`) drives and what a checkpoint holds.
 
 An algorithm (PPO and its recurrent variant in `ppo` and `recurrent_ppo`, SAC in `sac`) is a
 `Trainer` subclass. It builds its networks and optimisers in `__init__` (then `_start`), runs one
@@ -52,7 +52,7 @@ from .checks import (
     plain,
     tensor,
 )
-from .envs import EnvConfig
+from ..envs import EnvConfig
 
 LATEST = "checkpoint.pt"
 PREVIOUS = "checkpoint.prev.pt"
@@ -77,9 +77,9 @@ class Trainer:
     columns: tuple[str, ...] = ()
     """metrics.csv's header."""
     run_keys: tuple[str, ...] = ()
-    """config.json's entries, in order (`run.start_fresh` has their values)."""
+    """config.json's entries, in order (`loop.start_fresh` has their values)."""
     eval_keys: tuple[str, ...] = ()
-    """eval.json's entries before the evaluation's own, in order (`run.finish`)."""
+    """eval.json's entries before the evaluation's own, in order (`loop.train`)."""
     required: tuple[str, ...] = ()
     """Checkpoint entries of this algorithm beyond the common ones (`checkpoint.load_checkpoint`)."""
     Config: type = object

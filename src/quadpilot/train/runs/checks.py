@@ -282,7 +282,7 @@ def check_obs_rms(d: Any, where: str) -> None:
 
 def check_extra(extra: Any, where: str) -> None:
     """The caller's free data; the entries quad-train and the montage read back are checked."""
-    from .curriculum import CurriculumConfig
+    from ..curriculum import CurriculumConfig
 
     if not isinstance(extra, dict):
         raise ValueError(f"{where}: expected a table, found {short(extra)}")
