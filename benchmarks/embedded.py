@@ -43,7 +43,7 @@ from quadpilot.runtime import cgen, ctarget
 from quadpilot.runtime.backends import load_policy
 from quadpilot.runtime.cbench import cortex_m4_estimate, operation_count
 from quadpilot.runtime.model import initializer_arrays, read_model
-from quadpilot.train.run import cpu_model
+from quadpilot.train.runs.loop import cpu_model
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ("hover", "hover_lstm")
