@@ -3,7 +3,9 @@
     quad-sitl --realtime --link-impair loss=5%,delay=20ms,jitter=5ms,reorder=1%,duplicate=1%,burst=0.5%,seed=3
 
 The proxy listens on a loopback TCP port, and for every connection it accepts (the node, one per
-episode) it opens one to the simulator and relays both ways. What it relays are whole MAVLink
+episode) it opens one to the simulator and relays both ways; for a simulator on UDP it listens on a
+loopback UDP port, relays to the simulator from one socket of its own, and back to whoever sent
+last (a node's new episode is a new socket), each datagram parsed on its own. What it relays are whole MAVLink
 frames, as on a serial or UDP MAVLink link: the byte stream is cut into frames by pymavlink's parser
 (either version, signed or not: a frame is relayed byte for byte, its signature included), and each
 frame is lost, delayed, duplicated or held back whole. Bytes the parser cannot make a frame of
@@ -27,7 +29,8 @@ The spec, comma-separated KEY=VALUE (`parse_spec`; each impairment applies to ea
   draws from its own generator, so the same frames in the same order meet the same fate.
 
 `Proxy.counts` says what it did, per direction (`up`: node → simulator, `down`: simulator → node).
-Only loopback addresses, on both sides: the proxy is a test instrument, not a router.
+Only loopback addresses, on both sides: the proxy is a test instrument, not a router. A duplicated
+frame goes out as two (two datagrams over UDP).
 """
 
 from __future__ import annotations
@@ -172,39 +175,43 @@ def parse_spec(text: str, default_seed: int | None = None) -> Impairment:
 
 
 def check_loopback(address: Address, what: str) -> None:
-    """ImpairSpecError unless `address` is a loopback TCP address (127.0.0.0/8, ::1, localhost)."""
+    """ImpairSpecError unless `address` is a loopback address (127.0.0.0/8, ::1, localhost)."""
     host = address.host
     try:
         loopback = host == "localhost" or ipaddress.ip_address(host).is_loopback
     except ValueError:
         loopback = False
-    if address.protocol != "tcp" or not loopback:
+    if not loopback:
         raise ImpairSpecError(
-            f"--link-impair: {what} {address} is not a loopback TCP address; the impairment proxy relays "
-            "only between processes on this machine (tcp:127.0.0.1:PORT)"
+            f"--link-impair: {what} {address} is not a loopback address; the impairment proxy relays "
+            "only between processes on this machine (tcp:127.0.0.1:PORT or udp:127.0.0.1:PORT)"
         )
 
 
 class _Direction:
-    """One direction of one connection: parser, fate of each frame, and the schedule of what is due."""
+    """One direction of one connection: parser, fate of each frame, and the schedule of what is due.
+    `send(raw)` sends one frame (or chunk of unparsed bytes) on."""
 
-    def __init__(self, imp: Impairment, rng: random.Random, counts: Counter, dst: socket.socket) -> None:
-        self.imp, self.rng, self.counts, self.dst = imp, rng, counts, dst
-        self.parser = mavlink2.MAVLink(None)
-        self.parser.robust_parsing = True
+    def __init__(self, imp: Impairment, rng: random.Random, counts: Counter, send) -> None:
+        self.imp, self.rng, self.counts, self.send = imp, rng, counts, send
+        self.parser = _parser()
         self.bad = False  # the Gilbert chain's state
         self.last_due = 0.0
-        self.held: tuple[bytes, int] | None = None  # (bytes, frames in them)
+        self.held: tuple[bytes, int] | None = None  # (frame, copies)
         self.held_until = 0.0
 
-    def frames(self, data: bytes) -> list[tuple[bytes, bool]]:
-        """(raw bytes, is a frame) for what `data` completes."""
+    def frames(self, data: bytes, datagram: bool = False) -> list[tuple[bytes, bool]]:
+        """(raw bytes, is a frame) for what `data` completes; a `datagram` ends where it ends (a torn
+        frame at its end is passed on as unparsed bytes, and the next datagram starts afresh)."""
         out = []
         for m in self.parser.parse_buffer(data) or ():
             if m.get_type() == "BAD_DATA":
                 out.append((bytes(m.data), False))
             else:
                 out.append((bytes(m.get_msgbuf()), True))
+        if datagram and self.parser.buf_len():
+            out.append((bytes(self.parser.buf[self.parser.buf_index :]), False))
+            self.parser = _parser()
         return out
 
     def fate(self, raw: bytes, now: float, queue: list, seq) -> None:
@@ -231,9 +238,9 @@ class _Direction:
         c["duplicated"] += copies - 1
         if self.held is None and u_reorder < imp.reorder:
             c["reordered"] += 1
-            self.held, self.held_until = (raw * copies, copies), due + REORDER_HOLD_S
+            self.held, self.held_until = (raw, copies), due + REORDER_HOLD_S
             return
-        heapq.heappush(queue, (due, next(seq), self, raw * copies, copies))
+        heapq.heappush(queue, (due, next(seq), self, raw, copies))
         self.release(due, queue, seq)
 
     def release(self, due: float, queue: list, seq) -> None:
@@ -245,7 +252,13 @@ class _Direction:
     def pass_through(self, raw: bytes, now: float, queue: list, seq) -> None:
         self.counts["unparsed"] += 1
         due = max(now, self.last_due)
-        heapq.heappush(queue, (due, next(seq), self, raw, 0))
+        heapq.heappush(queue, (due, next(seq), self, raw, 0))  # 0 copies: sent once, counted as no frame
+
+
+def _parser():
+    parser = mavlink2.MAVLink(None)
+    parser.robust_parsing = True
+    return parser
 
 
 class Proxy:
@@ -269,12 +282,19 @@ class Proxy:
 
     def start(self) -> Address:
         host = "::1" if ":" in self.upstream.host else "127.0.0.1"
-        sock = socket.socket(socket.AF_INET6 if host == "::1" else socket.AF_INET, socket.SOCK_STREAM)
-        sock.bind((host, 0))
-        sock.listen(1)
+        family = socket.AF_INET6 if host == "::1" else socket.AF_INET
+        if self.upstream.protocol == "tcp":
+            sock = socket.socket(family, socket.SOCK_STREAM)
+            sock.bind((host, 0))
+            sock.listen(1)
+            run = self._run
+        else:
+            sock = socket.socket(family, socket.SOCK_DGRAM)
+            sock.bind((host, 0))
+            run = self._run_udp
         self._listener = sock
-        self.address = Address("tcp", host, sock.getsockname()[1])
-        self._thread = threading.Thread(target=self._run, name="link-impair", daemon=True)
+        self.address = Address(self.upstream.protocol, host, sock.getsockname()[1])
+        self._thread = threading.Thread(target=run, name="link-impair", daemon=True)
         self._thread.start()
         return self.address
 
@@ -322,25 +342,71 @@ class Proxy:
                 server.close()
 
     def _relay(self, client: socket.socket, server: socket.socket) -> None:
-        for s in (client, server):
-            s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            s.settimeout(1.0)  # a send to a peer that has stopped reading ends the connection
+        for sock in (client, server):
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            sock.settimeout(1.0)  # a send to a peer that has stopped reading ends the connection
         imp = self.impairment
         ways = {
-            client: _Direction(imp, self._rngs["up"], self.counts["up"], server),
-            server: _Direction(imp, self._rngs["down"], self.counts["down"], client),
+            client: _Direction(imp, self._rngs["up"], self.counts["up"], server.sendall),
+            server: _Direction(imp, self._rngs["down"], self.counts["down"], client.sendall),
         }
+
+        def recv(sock):
+            data = sock.recv(65536)
+            return data or None  # b"": that side closed, and the episode is over
+
+        self._loop(ways, recv, datagram=False)
+
+    def _run_udp(self) -> None:
+        """UDP: one socket faces the node (the latest sender is the node: a new episode is a new
+        socket), one is connected to the simulator; each datagram is parsed on its own."""
+        front = self._listener
+        back = socket.socket(front.family, socket.SOCK_DGRAM)
+        back.bind((self.address.host, 0))
+        back.connect((self.upstream.host, self.upstream.port))
+        client: list = [None]
+        imp = self.impairment
+
+        def to_node(raw: bytes) -> None:
+            if client[0] is not None:
+                front.sendto(raw, client[0])
+
+        ways = {
+            front: _Direction(imp, self._rngs["up"], self.counts["up"], back.send),
+            back: _Direction(imp, self._rngs["down"], self.counts["down"], to_node),
+        }
+
+        def recv(sock):
+            try:
+                data, sender = sock.recvfrom(65536)
+            except OSError:  # an ICMP port-unreachable report, say: UDP has no connection to lose
+                return b""
+            if sock is front and sender != client[0]:
+                client[0] = sender
+                self.connections += 1
+            return data
+
+        try:
+            self._loop(ways, recv, datagram=True)
+        finally:
+            back.close()
+
+    def _loop(self, ways: dict, recv, datagram: bool) -> None:
+        """Relay until `stop()` or `recv` says a side closed (None): what is due goes out, what
+        arrives is cut into frames and given its fate."""
         queue: list = []
         seq = iter(range(1 << 62))
         while not self._stop.is_set():
             now = time.monotonic()
             while queue and queue[0][0] <= now:
-                _, _, way, raw, frames = heapq.heappop(queue)
+                _, _, way, raw, copies = heapq.heappop(queue)
                 try:
-                    way.dst.sendall(raw)
+                    for _ in range(max(copies, 1)):
+                        way.send(raw)
                 except OSError:
-                    return
-                way.counts["relayed"] += frames
+                    if not datagram:
+                        return
+                way.counts["relayed"] += copies
             for way in ways.values():  # a frame held back that no next frame came to release
                 if way.held is not None and way.held_until <= now:
                     way.release(now, queue, seq)
@@ -350,13 +416,13 @@ class Proxy:
             ready, _, _ = select.select(list(ways), [], [], wait)
             for sock in ready:
                 try:
-                    data = sock.recv(65536)
+                    data = recv(sock)
                 except OSError:
                     return
-                if not data:
-                    return  # either side closed: the episode is over; what is still queued is lost with it
+                if data is None:
+                    return  # what is still queued is lost with the connection
                 way, now = ways[sock], time.monotonic()
-                for raw, is_frame in way.frames(data):
+                for raw, is_frame in way.frames(data, datagram):
                     if is_frame:
                         way.fate(raw, now, queue, seq)
                     else:
