@@ -35,6 +35,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +73,8 @@ SIM_FLAGS = {
     "--estimator-noise": None,
     "--vehicle": "NAME|FILE.toml",
     "--start": "air|landed",
+    "--sensor-fault": "KIND@T",
+    "--rate": "HZ",
 }
 
 
@@ -425,7 +428,7 @@ def main(argv: list[str] | None = None) -> int:
             key = read_key(args.key)
         except SigningError as e:
             return _bad_file(str(e))
-    old = signal.signal(signal.SIGTERM, _on_sigterm) if _in_main_thread() else None
+    old = signal.signal(signal.SIGTERM, _on_sigterm) if threading.current_thread() is threading.main_thread() else None
     try:
         with tempfile.TemporaryDirectory(prefix="quad-sitl-") as tmp:  # the policy's vehicle file, if it needs one
             if args.node_only:
@@ -453,12 +456,6 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, old)
 
 
-def _in_main_thread() -> bool:
-    import threading
-
-    return threading.current_thread() is threading.main_thread()
-
-
 def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes | None) -> int:
     """Start the simulator, fly, summarise. The simulator is stopped on every way out of here (return,
     exception, Ctrl-C, SIGTERM via `_Terminated`)."""
@@ -471,8 +468,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
         print(sitl_node.LOCKSTEP_COMMANDED_WARNING, file=sys.stderr)
     duration = args.duration or (sitl_node.COMMANDED_DURATION_S if commanded else default_duration_s(task))
     monitor = SafetyMonitor(policy)
-    sim = None
-    tlog = None
+    sim = tlog = proxy = None
     logs = []
     try:
         listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
@@ -487,6 +483,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
             print(f"quad-sitl: error: the simulator did not start: {address}", file=sys.stderr)
             return 1
         gcs = None if args.gcs.lower() == "none" else args.gcs
+        proxy, address = sitl_node.start_impair(args, address)  # --link-impair: the node talks through it
         node = Node(
             NodeConfig(
                 connect=address,
@@ -519,6 +516,8 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
     finally:
         if tlog is not None:
             tlog.close()
+        if proxy is not None:
+            proxy.stop()
         if sim is not None:
             sim.stop()
     summary = sitl_node.summarise(logs, policy.info.control_period_s, task)
@@ -526,6 +525,8 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
     summary["policy"] = str(policy_path)
     summary["backend"] = args.backend
     summary["monitor_events"] = dict(monitor.events)
+    if proxy is not None:
+        summary["link_impair"] = proxy.summary()
     if commanded:
         summary["commanded"] = sitl_node.commanded_summary(logs)
     sitl_node.print_summary(summary, policy_path)

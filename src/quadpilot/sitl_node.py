@@ -129,6 +129,54 @@ def target_type(text: str) -> tuple[float, float, float]:
 target_type.__name__ = "target"
 
 
+def impair_type(text: str):
+    from quadpilot.link.impair import ImpairSpecError, parse_spec
+
+    try:
+        return parse_spec(text)
+    except ImpairSpecError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("--link-impair ")) from None
+
+
+impair_type.__name__ = "impairment"
+
+
+def start_impair(args, address: str):
+    """(proxy, the address the node connects to): with --link-impair, an impairment proxy relaying to
+    `address` (loopback only: ImpairSpecError otherwise), seeded by the spec or --seed; else (None, address)."""
+    if args.link_impair is None:
+        return None, address
+    import dataclasses
+
+    from quadpilot.link.impair import Proxy
+
+    imp = args.link_impair
+    if imp.seed is None:
+        imp = dataclasses.replace(imp, seed=getattr(args, "seed", 0))
+    lost = imp.loss > 0 or imp.burst > 0
+    if lost and getattr(args, "lockstep", False):
+        print(
+            "quad-sitl: warning: --link-impair with loss in lockstep: a lost frame stalls both sides until a "
+            "timeout ends the flight; add --realtime",
+            file=sys.stderr,
+        )
+    proxy = Proxy(address, imp)
+    return proxy, str(proxy.start())
+
+
+def impair_line(s: dict) -> str:
+    """What the proxy did, for the summary."""
+    up, down = s["up"], s["down"]
+
+    def way(c: dict) -> str:
+        return (
+            f"{c['frames']:,} frames: lost {c['lost']:,} + {c['lost_burst']:,} in bursts, delayed {c['delayed']:,}, "
+            f"duplicated {c['duplicated']:,}, reordered {c['reordered']:,}"
+        )
+
+    return f"  link impaired ({s['spec']})  node→sim {way(up)}; sim→node {way(down)}"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """--spin-us, and the flags only --node-only takes."""
     p.add_argument(
@@ -138,6 +186,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="US",
         help="In lockstep, µs the node and the simulator poll for each other's answer before they sleep: "
         f"faster on an idle machine, a busy core each while waiting. 0: off. Default: {LOCKSTEP_SPIN_S * 1e6:g}",
+    )
+    p.add_argument(
+        "--link-impair",
+        type=impair_type,
+        metavar="SPEC",
+        help="Relay the node's link through an impairment proxy on loopback: whole MAVLink frames lost, delayed, "
+        "duplicated, reordered, e.g. loss=5%%,delay=20ms,jitter=5ms,reorder=1%%,duplicate=1%%,burst=1%%,burst-len=5,"
+        "seed=N (default seed: --seed); see quadpilot.link.impair",
     )
     g = p.add_argument_group("--node-only (against any PX4-API simulator)")
     g.add_argument(
@@ -156,12 +212,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--trace", type=Path, metavar="OUT.csv", help="Write one CSV row per simulator step.")
 
 
+def _not_loopback(address: str | None) -> str | None:
+    """Why --link-impair cannot relay to `address` (not loopback TCP), or None (None: a free loopback port)."""
+    from quadpilot.link.impair import ImpairSpecError, check_loopback
+    from quadpilot.link.transport import parse_address
+
+    try:
+        if address is not None:
+            check_loopback(parse_address(address), "the simulator address")
+    except ImpairSpecError as e:
+        return str(e)
+    return None
+
+
 def misused(args) -> str | None:
     """Why the flags do not go together (one line), or None."""
     if commanded(args) and args.gcs.lower() == "none":
         return "--start landed waits for a ground station's commands; --gcs none leaves it without one"
     if commanded(args) and args.min_success > 0:
         return "--min-success: a commanded flight has no success criterion of its own; read its --json"
+    if args.link_impair is not None and (why := _not_loopback(args.connect if args.node_only else args.listen)):
+        return why
     if not args.node_only:
         given = [f for f in FLAGS if getattr(args, f[2:]) is not None]
         return f"{', '.join(given)}: for --node-only" if given else None
@@ -290,8 +361,15 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
     period = policy.info.control_period_s
     monitor = SafetyMonitor(policy)
     gcs = None if args.gcs.lower() == "none" else args.gcs
+    from quadpilot.link.impair import ImpairSpecError
+
+    try:
+        proxy, connect = start_impair(args, args.connect)
+    except ImpairSpecError as e:
+        print(f"quad-sitl: error: {e}", file=sys.stderr)
+        return 2
     cfg = NodeConfig(
-        connect=args.connect,
+        connect=connect,
         duration_s=args.duration or default_duration_s("hover"),
         lockstep=args.lockstep,
         gcs=gcs,
@@ -317,8 +395,13 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
     finally:
         if tlog is not None:
             tlog.close()
+        if proxy is not None:
+            proxy.stop()
     s = flight_summary(log, monitor, period)
     s.update(mode="node-only", policy=str(policy_path), backend=args.backend, simulator=args.connect)
+    if proxy is not None:
+        s["link_impair"] = proxy.summary()
+        print(impair_line(s["link_impair"]))
     s["home_source"] = "--home" if args.home is not None else "first valid position"
     print(summary_line(s))
     for flag, path, write in (
@@ -362,6 +445,10 @@ def summarise(logs, period: float, task: str = "hover") -> dict:
     from quadpilot.autopilot.flight_log import episode_summary
 
     eps = [episode_summary(log, period, task) for log in logs]
+    for e, log in zip(eps, logs, strict=True):  # what the node did in each
+        e["failsafe"] = log.failsafe
+        e["fallback_steps"] = sum(1 for s in log.sources if s not in NOT_FLOWN_BY_FALLBACK)
+        e["blind_replies"] = log.blind_replies
     lat = np.concatenate([np.asarray(log.latency_s) for log in logs]) * 1e6 if logs else np.zeros(0)
     steps = sum(log.steps for log in logs)
     wall = sum(log.wall_s for log in logs)
@@ -430,6 +517,8 @@ def print_summary(s: dict, policy: Path) -> None:
         f"  failsafes {s['failsafe_events']}, fallback steps {s['fallback_steps']} (hand-overs "
         f"{s['hand_overs']}, hand-backs {s['hand_backs']}), packets dropped: {dropped}"
     )
+    if "link_impair" in s:
+        print(impair_line(s["link_impair"]))
     for c in s.get("commanded", []):
         gcs_dropped = ", ".join(f"{k} {v}" for k, v in sorted(c["gcs_dropped"].items())) or "none dropped"
         end = "never disarmed after flying" if c["disarmed_at_s"] is None else f"disarmed at {c['disarmed_at_s']:.1f} s"

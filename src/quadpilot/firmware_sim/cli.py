@@ -28,6 +28,7 @@ from quadpilot.link.spin import MAX_SPIN_US
 from quadpilot.link.transport import SigningError, SimulatorError, parse_address, read_key
 
 from .config import DEFAULT_WIND_DRAG, START_MODES, SimConfig
+from .faults import KINDS, FaultSpecError, parse_faults
 from .process import Simulator
 from .records import SimStats
 
@@ -105,6 +106,13 @@ def _listen(text: str) -> str:
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e)) from None
     return text
+
+
+def _faults(text: str):
+    try:
+        return parse_faults(text)
+    except FaultSpecError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("--sensor-fault ")) from None
 
 
 def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentParser:
@@ -192,6 +200,14 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         metavar="US",
         help=f"µs to poll for the peer's answer before sleeping, in lockstep (default {d.spin_s * 1e6:g}; 0: off)",
     )
+    p.add_argument(
+        "--sensor-fault",
+        type=_faults,
+        default=(),
+        metavar="KIND@T",
+        help="inject sensor faults at a simulated time of every episode, e.g. gyro-spike@2s, pos-freeze@2s+0.5s, "
+        "baro-step@1s:5, nan@3s:gyro (kinds: " + ", ".join(KINDS) + "; see firmware_sim.faults)",
+    )
     p.add_argument("--json", metavar="OUT", default=None, help="write the stats and episode records as JSON on exit")
     p.add_argument(
         "--key",
@@ -245,6 +261,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             max_steps=args.max_steps,
             spin_s=args.spin_us / 1e6,
             signing_key=read_key(args.key) if args.key else None,
+            sensor_faults=args.sensor_fault,
         )
     except (ValueError, SigningError) as e:
         raise UsageError(str(e)) from None

@@ -21,6 +21,7 @@ from quadpilot.link import wire
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, check_spin
 from quadpilot.link.transport import Address, parse_address
 
+from .faults import SensorFault
 from .plant import landed_state
 
 DEFAULT_WIND_DRAG = 0.2
@@ -127,6 +128,8 @@ class SimConfig:
     are refused when the file's vehicle is not that preset. None: the preset itself."""
     airframe_source: str = ""
     """Where `airframe` came from (a path, shown in messages)."""
+    sensor_faults: tuple[SensorFault, ...] = ()
+    """Sensor faults injected at a set simulated time of every episode (`faults`, `--sensor-fault`)."""
 
     def __post_init__(self) -> None:
         parse_address(self.listen)
@@ -164,6 +167,8 @@ class SimConfig:
                 raise ValueError(f"{name} must be an integer ≥ {lo}, got {v!r}")
         if self.episodes is not None and (not isinstance(self.episodes, int) or self.episodes < 1):
             raise ValueError(f"episodes must be an integer ≥ 1 or None (for ever), got {self.episodes!r}")
+        if not all(isinstance(f, SensorFault) for f in self.sensor_faults):
+            raise ValueError(f"sensor_faults must be SensorFault values (faults.parse_faults): {self.sensor_faults!r}")
         if self.signing_key is not None and (not isinstance(self.signing_key, bytes) or len(self.signing_key) != 32):
             raise ValueError("signing_key must be 32 bytes")
         if self.airframe is not None and not isinstance(self.airframe, VehicleParams):

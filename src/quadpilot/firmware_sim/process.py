@@ -33,15 +33,21 @@ from quadpilot.link import spin
 from quadpilot.link.transport import Address, Listener, PeerClosed
 
 from .config import SimConfig
+from .faults import FaultPlayer
 from .plant import Plant
 from .protocol import Protocol
 from .records import EpisodeRecord, EpisodeTally, SimStats
-from .sensors import Sensors
+from .sensors import Sensors, isa_pressure_hpa, isa_temperature_c
 
 log = logging.getLogger(__name__)
 
 POLL_S = 0.05
 """s, longest a wait goes without looking at `stop()`."""
+
+
+def _isa(alt_msl_m: float) -> tuple[float, float]:
+    """The barometer's pressure (hPa) and temperature (°C) at an altitude (a faulted one, `faults`)."""
+    return isa_pressure_hpa(alt_msl_m), isa_temperature_c(alt_msl_m)
 
 
 def crashed_one(state: np.ndarray, target: np.ndarray, reward: RewardConfig) -> bool:
@@ -149,6 +155,7 @@ class Simulator:
         self._target = cfg.area_centre(k)
         plant.reset(state0)  # (a gust draw) before the sensors' noise draws from the same generator
         self._sensors = Sensors(cfg.sensor_noise, cfg.dt, rng, cfg.home.alt_m, cfg.imu_noise, cfg.estimator_noise)
+        self._io.faults = FaultPlayer(cfg.sensor_faults, cfg.dt, _isa) if cfg.sensor_faults else None
         n, wall0, end = 0, time.monotonic(), "max_steps"
         try:
             end = None if heard else self._await_heartbeat(link, ep)

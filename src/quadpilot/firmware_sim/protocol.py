@@ -10,6 +10,8 @@ Out, each step, in this order (PX4's Simulator MAVLink API; `link.wire` encodes 
 4. HIL_SENSOR, last, because a PX4 peer steps on it: gyro (body rates), accelerometer (specific
    force), magnetometer, barometer (with `imu_noise`: `core.sensor_noise`'s IMU model).
 
+With `sensor_faults`, 1, 2 and 4 are faulted (or withheld) as `faults` says before they go out.
+
 In: one receive point (`receive`) dispatching on the message type. HIL_ACTUATOR_CONTROLS is handed
 to the server loop; HEARTBEAT is counted (the server loop starts an episode on the first one, in
 either MAVLink version: the link parses both); BAD_DATA (pymavlink's type for garbage and bad CRCs) and
@@ -39,6 +41,7 @@ from quadpilot.link import wire
 from quadpilot.link.transport import Link, PeerClosed, bad_data_reason
 
 from .config import SimConfig
+from .faults import FaultPlayer
 from .plant import Plant
 from .records import EpisodeTally, SimStats
 from .sensors import Sensors
@@ -68,6 +71,8 @@ class Protocol:
     def __init__(self, cfg: SimConfig, stats: SimStats) -> None:
         self.cfg = cfg
         self.stats = stats
+        self.faults: FaultPlayer | None = None
+        """The episode's sensor faults (`faults`), set by the server loop per episode; None: none."""
 
     def send_step(self, link, plant: Plant, n: int, sensors: Sensors) -> None:
         """The messages of step `n` (see the module doc), then one flush. Each goes to pymavlink as
@@ -77,15 +82,21 @@ class Protocol:
         t_us = TIME_ORIGIN_US + round(n * cfg.dt * 1e6)
         state = plant.state
         values = state.tolist()  # plain floats for the scalar field arithmetic
-        if n % cfg.gps_every == 0:
-            send(_HIL_GPS, wire.hil_gps_args(values, cfg.home, t_us))
+        gps = wire.hil_gps_args(values, cfg.home, t_us) if n % cfg.gps_every == 0 else None
         rot = body_to_world(state)  # once for the accelerometer and the magnetometer
         accel = plant.specific_force_flu(rot)
-        send(_HIL_STATE_QUATERNION, wire.hil_state_quaternion_args(values, cfg.home, t_us, accel.tolist()))
+        hil_state = wire.hil_state_quaternion_args(values, cfg.home, t_us, accel.tolist())
         r = sensors.read(state, accel, n, rot)
+        sensor = wire.hil_sensor_args(t_us, r.gyro, r.accel, r.mag, r.pressure_hpa, r.alt_m, r.temperature_c)
+        if self.faults is not None:  # `faults`: this episode's injected sensor faults
+            gps, hil_state = self.faults.apply(n, gps, hil_state, sensor)
+        if gps is not None:
+            send(_HIL_GPS, gps)
+        if hil_state is not None:
+            send(_HIL_STATE_QUATERNION, hil_state)
         if r.estimate is not None:
             link.mav.odometry_send(**wire.odometry_fields(r.estimate, t_us, *sensors.variances))
-        send(_HIL_SENSOR, wire.hil_sensor_args(t_us, r.gyro, r.accel, r.mag, r.pressure_hpa, r.alt_m, r.temperature_c))
+        send(_HIL_SENSOR, sensor)
         link.flush()
 
     def receive(self, link, timeout: float, ep: EpisodeTally | None):

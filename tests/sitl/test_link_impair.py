@@ -1,0 +1,51 @@
+"""quad-sitl --link-impair end to end: the node's link to the simulator goes through the impairment
+proxy (TCP, and UDP), the summary and --json say what it did, and the hover still holds at 5 % frame
+loss (real time: in lockstep a lost frame stalls both sides)."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import pytest
+
+from quadpilot.firmware_sim.sim import SimConfig, Simulator
+from quadpilot.sitl import main as quad_sitl
+
+pytestmark = pytest.mark.sitl
+
+
+@pytest.mark.parametrize("proto", ["tcp", "udp"])
+def test_quad_sitl_flies_through_the_proxy_and_says_what_it_did(proto, tmp_path, capsys):
+    out = tmp_path / "s.json"
+    argv = ["--realtime", "--episodes", "1", "--gcs", "none", "--listen", f"{proto}:127.0.0.1:0"]
+    assert quad_sitl([*argv, "--link-impair", "loss=5%,duplicate=2%,seed=1", "--json", str(out)]) == 0
+    s = json.loads(out.read_text())
+    li = s["link_impair"]
+    assert li["spec"] == "loss=5%,duplicate=2%,seed=1" and li["connections"] == 1
+    for way in ("up", "down"):  # whole frames both ways, some lost, some twice
+        c = li[way]
+        assert c["frames"] > 400 and 0 < c["lost"] < 0.15 * c["frames"] and c["duplicated"] > 0
+        due = c["frames"] - c["lost"] - c["lost_burst"] + c["duplicated"]
+        assert 0 <= due - c["relayed"] <= 3  # what was still in flight when the episode ended is not relayed
+    assert s["success_rate"] == 1.0 and s["failsafe_events"] == 0
+    # a lost state leaves its step unanswered; a duplicate is refused as a repeated timestamp
+    assert s["packets_dropped"]["sensor_without_state"] > 0 and s["packets_dropped"]["time_repeated"] > 0
+    assert "link impaired (loss=5%,duplicate=2%,seed=1)" in capsys.readouterr().out
+
+
+def test_node_only_flies_through_the_proxy_to_a_simulator_it_did_not_start(tmp_path, capsys):
+    sim = Simulator(SimConfig(listen="tcp:127.0.0.1:0", episodes=1, lockstep=False, lockstep_timeout_s=2.0))
+    port = sim.bind().port
+    thread = threading.Thread(target=sim.serve, daemon=True)
+    thread.start()
+    out = tmp_path / "n.json"
+    try:
+        argv = ["--node-only", "--connect", f"tcp:127.0.0.1:{port}", "--realtime", "--duration", "2", "--gcs", "none"]
+        assert quad_sitl([*argv, "--link-impair", "delay=5ms", "--json", str(out)]) == 0
+    finally:
+        sim.stop()
+        thread.join(10)
+    li = json.loads(out.read_text())["link_impair"]
+    assert li["up"]["delayed"] == li["up"]["frames"] > 150 and li["down"]["delayed"] == li["down"]["frames"]
+    assert "link impaired (delay=5ms,seed=0)" in capsys.readouterr().out
