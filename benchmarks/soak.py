@@ -4,7 +4,7 @@
     .venv/bin/python benchmarks/soak.py --realtime --seconds 1800 --out docs/bench/soak_realtime.json
 
 The simulator runs as its own process (`python -m quadpilot.firmware_sim --sim-only`, as quad-sitl
-starts it) and the node (`runtime.node.Node`, the shipped hover policy, numpy backend) in this one,
+starts it) and the node (`autopilot.node.Node`, the shipped hover policy, numpy backend) in this one,
 over loopback TCP at 100 Hz, for `--episodes` back-to-back episodes (one connection each, as quad-sitl
 flies them) that add up to `--steps` lockstep steps or `--seconds` of real time. After every episode it
 records the resident set size (VmRSS, /proc) of both processes; the growth is the last episode's RSS
@@ -32,9 +32,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from quadpilot.runtime.node import Node, NodeConfig
 
 from link_faults import machine
+from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.sitl import SHIPPED_HOVER, _start_simulator
 
