@@ -54,7 +54,7 @@ REORDER_HOLD_S = 0.05
 """s, longest a frame held back for reordering waits for the next frame of its direction."""
 MAX_DELAY_S = 10.0
 """s, the largest delay (plus jitter) the spec accepts."""
-POLL_S = 0.05
+STOP_CHECK_S = 0.05
 """s, longest the relay loop goes without looking at `stop()`."""
 DIRECTIONS = ("up", "down")
 """`up`: node → simulator (actuator commands, heartbeats); `down`: simulator → node (states, sensors)."""
@@ -321,7 +321,7 @@ class Proxy:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            ready, _, _ = select.select([self._listener], [], [], POLL_S)
+            ready, _, _ = select.select([self._listener], [], [], STOP_CHECK_S)
             if not ready:
                 continue
             try:
@@ -412,7 +412,7 @@ class Proxy:
                     way.release(now, queue, seq)
             due = [queue[0][0]] if queue else []
             due += [w.held_until for w in ways.values() if w.held is not None]
-            wait = min([POLL_S, *(max(d - now, 0.0) for d in due)])
+            wait = min([STOP_CHECK_S, *(max(d - now, 0.0) for d in due)])
             ready, _, _ = select.select(list(ways), [], [], wait)
             for sock in ready:
                 try:
