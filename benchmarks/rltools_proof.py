@@ -93,9 +93,7 @@ def _low_byte_effect(good: Path) -> float:
     """How far the example outputs move when one weight's low-order byte changes (DAMAGE's case)."""
     damaged = files.DAMAGE["a weight's low-order byte changed"](good.read_bytes())
     w0, w1 = rt.parse_policy_tar(good.read_bytes()), rt.parse_policy_tar(damaged)
-    return float(
-        np.max(np.abs(rt.policy_sequence(w1.weights, w0.example_in) - rt.policy_sequence(w0.weights, w0.example_in)))
-    )
+    return float(np.max(np.abs(files.forward(w1.weights, w0.example_in) - files.forward(w0.weights, w0.example_in))))
 
 
 def _px4_blob(blob_path: Path, weights: dict, harnesses: dict[str, Path]) -> dict:

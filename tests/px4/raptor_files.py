@@ -9,6 +9,7 @@ import tarfile
 import numpy as np
 
 from quadpilot.runtime import rltools_tar as rt
+from quadpilot.runtime.gru import GruStep, sequences
 
 FOUNDATION_NAME = "logs/2025-04-19_16-16-17"  # the checkpoint name in the package and in PX4's blob
 GYRO_PER_NATIVE = 4  # IMU_GYRO_RATEMAX 400 Hz / 100 Hz training (mc_raptor's force_sync_native)
@@ -135,11 +136,17 @@ def fly_like_mc_raptor(step, obs: np.ndarray) -> np.ndarray:
     return out
 
 
+def forward(weights, xs):
+    """Outputs (T, B, 4) of the runtime's GRU step on inputs (T, B, 22), each sequence from a reset."""
+    return sequences(GruStep(weights), xs)
+
+
 def our_stepper(weights):
-    state = {"h": rt.initial_state(weights, 1)[0]}
+    gru_step = GruStep(weights)
+    state = {"h": gru_step.initial_state.copy()}
 
     def step(x, advance):
-        action, h = rt.policy_step(weights, x.astype(np.float64), state["h"])
+        action, h = gru_step(np.ascontiguousarray(x, np.float32), state["h"])
         if advance:
             state["h"] = h
         return action

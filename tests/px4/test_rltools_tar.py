@@ -15,6 +15,7 @@ from raptor_files import (
     FOUNDATION_NAME,
     example_index,
     flip_low_byte,
+    forward,
     foundation,
     members,
     patch_float,
@@ -55,14 +56,14 @@ def test_gru_forward_matches_foundation_policy_inference():
 
     w, ex_in, ex_out = _foundation()
     theirs = foundation_policy.Raptor()
-    ours = rt.policy_sequence(w, ex_in)
+    ours = forward(w, ex_in)
     assert np.max(np.abs(ours - theirs.evaluate(ex_in))) <= 1e-5
     assert np.max(np.abs(ours - ex_out)) <= 1e-5  # and RLtools' own stored outputs
     # inputs of another scale, step by step with the state carried
     x = np.random.default_rng(1).normal(0, 2, (200, 3, 22)).astype(np.float32)
     theirs.reset()
     steps = np.stack([theirs.evaluate_step(x[t].astype(np.float64)) for t in range(len(x))])
-    assert np.max(np.abs(rt.policy_sequence(w, x) - steps)) <= 1e-5
+    assert np.max(np.abs(forward(w, x) - steps)) <= 1e-5
 
 
 def test_round_trip_and_same_bytes_for_same_input(tmp_path):

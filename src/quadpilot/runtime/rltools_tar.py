@@ -36,7 +36,7 @@ writer writes (tests/px4 compares them; PX4's shipped blob/policy.tar is one, do
 `read_policy_tar` treats the file as untrusted: it never extracts to disk, refuses a file over
 `MAX_FILE_BYTES`, anything but the exact member names (no duplicates, no links, no long-name or
 pax headers RLtools would read differently), any metadata but the exact text for the expected
-shape and dtype, any non-finite value, and it replays the WHOLE stored example with its own forward
+shape and dtype, any non-finite value, and it replays the WHOLE stored example with runtime/gru.py's step
 (mc_raptor's check replays 2 x 5 steps). A changed low-order byte of a weight moves the outputs by
 less than 1e-8 (docs/px4.md) and passes any replay; the SHA-256 beside the file
 (`policy.tar.sha256`) catches it.
@@ -58,7 +58,7 @@ import numpy as np
 from quadpilot import console
 from quadpilot.core.px4_raptor import ACTION_DIM, OBS_DIM
 
-from .gru import HIDDEN
+from .gru import GRU_KEYS, GruStep, sequences
 
 EXAMPLE_STEPS = 500
 EXAMPLE_BATCH = 2
@@ -73,17 +73,7 @@ MAX_FILE_BYTES = 1 << 20  # the file is about 130 kB
 ACTOR_META_MAX_BYTES = 256
 CHECKPOINT_NAME = re.compile(r"[A-Za-z0-9_.+/-][A-Za-z0-9_.+/ -]{0,98}")
 
-WEIGHT_SHAPES: dict[str, tuple[int, ...]] = {
-    "layers/0/weights": (HIDDEN, OBS_DIM),
-    "layers/0/biases": (HIDDEN,),
-    "layers/1/weights_input": (3 * HIDDEN, HIDDEN),
-    "layers/1/biases_input": (3 * HIDDEN,),
-    "layers/1/weights_hidden": (3 * HIDDEN, HIDDEN),
-    "layers/1/biases_hidden": (3 * HIDDEN,),
-    "layers/1/initial_hidden_state": (HIDDEN,),
-    "layers/2/weights": (ACTION_DIM, HIDDEN),
-    "layers/2/biases": (ACTION_DIM,),
-}
+WEIGHT_SHAPES: dict[str, tuple[int, ...]] = GRU_KEYS
 N_PARAMETERS = sum(math.prod(s) for s in WEIGHT_SHAPES.values())
 EXAMPLE_SHAPES = {
     "input": (EXAMPLE_STEPS, EXAMPLE_BATCH, OBS_DIM),
@@ -126,54 +116,6 @@ LAYOUT = _layout()
 MEMBER_NAMES = [m for m, _, _ in LAYOUT]
 
 
-# --- the forward (RLtools' equations) -------------------------------------------------------------
-
-
-def _sigmoid(x: np.ndarray) -> np.ndarray:
-    return 1.0 / (1.0 + np.exp(-x))
-
-
-def rltools_gru_step(weights: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """One step of RLtools' GRU (nn/layers/gru/operations_generic.h, `evaluate_step`), float64.
-
-    To be merged with the runtime's NumPy GRU step when that lands; kept here, small and named for
-    what it follows, so this module can replay a checkpoint on its own. Gates in RLtools' order
-    r | z | n; the hidden bias enters the candidate inside the reset gate's product:
-        r = sigmoid(W_ir x + b_ir + W_hr h + b_hr)
-        z = sigmoid(W_iz x + b_iz + W_hz h + b_hz)
-        n = tanh(W_in x + b_in + r * (W_hn h + b_hn))
-        h' = (1 - z) * n + z * h
-    `x` is (..., 16), `h` is (..., 16).
-    """
-    gi = x @ weights["layers/1/weights_input"].astype(np.float64).T + weights["layers/1/biases_input"]
-    gh = h @ weights["layers/1/weights_hidden"].astype(np.float64).T + weights["layers/1/biases_hidden"]
-    r = _sigmoid(gi[..., :HIDDEN] + gh[..., :HIDDEN])
-    z = _sigmoid(gi[..., HIDDEN : 2 * HIDDEN] + gh[..., HIDDEN : 2 * HIDDEN])
-    n = np.tanh(gi[..., 2 * HIDDEN :] + r * gh[..., 2 * HIDDEN :])
-    return (1.0 - z) * n + z * h
-
-
-def initial_state(weights: dict[str, np.ndarray], batch: int = 1) -> np.ndarray:
-    """The GRU state after a reset (RLtools copies `initial_hidden_state` into every row)."""
-    return np.tile(weights["layers/1/initial_hidden_state"].astype(np.float64), (batch, 1))
-
-
-def policy_step(weights: dict[str, np.ndarray], obs: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(action, next state) of dense-ReLU, GRU, dense on `obs` (..., 22); the action is not clipped."""
-    x = np.maximum(obs @ weights["layers/0/weights"].astype(np.float64).T + weights["layers/0/biases"], 0.0)
-    h_next = rltools_gru_step(weights, x, h)
-    return h_next @ weights["layers/2/weights"].astype(np.float64).T + weights["layers/2/biases"], h_next
-
-
-def policy_sequence(weights: dict[str, np.ndarray], seq: np.ndarray) -> np.ndarray:
-    """Outputs (T, B, 4) for inputs (T, B, 22), the state reset before the first step (RLtools `evaluate`)."""
-    h = initial_state(weights, seq.shape[1])
-    out = np.empty((seq.shape[0], seq.shape[1], ACTION_DIM))
-    for t in range(seq.shape[0]):
-        out[t], h = policy_step(weights, seq[t].astype(np.float64), h)
-    return out
-
-
 # --- checks shared by the writer and the reader ---------------------------------------------------
 
 
@@ -201,10 +143,12 @@ def check_weights(weights: dict[str, object]) -> dict[str, np.ndarray]:
 
 
 def replay_difference(weights: dict[str, np.ndarray], example_in: np.ndarray, example_out: np.ndarray) -> float:
-    """Largest absolute difference between the stored example output and our forward, every step
-    (NaN when the forward overflows: weights from a hostile file may be huge)."""
+    """Largest absolute difference between the stored example output and the runtime's GRU step
+    (runtime/gru.py, the one forward), every step (NaN when the forward overflows: weights from a
+    hostile file may be huge)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        return float(np.max(np.abs(policy_sequence(weights, example_in) - example_out)))
+        ours = sequences(GruStep(weights), example_in).astype(np.float64)
+        return float(np.max(np.abs(ours - example_out)))
 
 
 # --- writing ---------------------------------------------------------------------------------------
