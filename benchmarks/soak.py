@@ -81,7 +81,13 @@ def main(argv: list[str] | None = None) -> int:
     cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
     cmd += ["--realtime" if args.realtime else "--lockstep"]  # serves until stopped: its RSS is read after the last
     cmd += ["--max-steps", str(steps_per_episode + 10), "--json", str(stats_path)]
-    proc, address = _start_simulator(cmd)
+    # the simulator writes its --json when SIGINT stops it; a job started in the background (CI) has
+    # SIGINT ignored, which a child inherits: it gets Python's own handler for the start instead
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc, address = _start_simulator(cmd)
+    finally:
+        signal.signal(signal.SIGINT, before)
     if proc is None:
         print(f"soak: the simulator did not start: {address}", file=sys.stderr)
         return 1

@@ -95,12 +95,16 @@ def test_lockstep_closed_loop(benchmark, backend):
 
 # One child per version: flies `steps` lockstep steps per "fly" line read from stdin against its own
 # simulator process and answers with one JSON line. Only names both versions have (bb5efb7's and
-# today's quadpilot.sitl._start_simulator, runtime.Node/NodeConfig/SafetyMonitor/load_policy).
+# today's quadpilot.sitl._start_simulator, the node (autopilot.node; runtime.node before it), SafetyMonitor,
+# load_policy).
 FLYER = r"""
 import json, sys, time
 import numpy as np
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.autopilot.node import Node, NodeConfig
+try:
+    from quadpilot.autopilot.node import Node, NodeConfig
+except ImportError:  # a baseline from before the vehicle stack had its own package
+    from quadpilot.runtime.node import Node, NodeConfig
 from quadpilot.sitl import _start_simulator
 
 policy, backend, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])

@@ -147,7 +147,8 @@ def blas_kernel() -> str:
     """The OpenBLAS kernel numpy runs on this CPU (threadpoolctl's `architecture`)."""
     from threadpoolctl import threadpool_info
 
-    (blas,) = [i for i in threadpool_info() if i["internal_api"] == "openblas"]
+    # numpy's own OpenBLAS (scipy or torch, once imported, bring others)
+    (blas,) = [i for i in threadpool_info() if i["internal_api"] == "openblas" and "numpy" in i["filepath"]]
     return blas["architecture"]
 
 
