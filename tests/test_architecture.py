@@ -2,6 +2,7 @@
 src/quadpilot must be one the table allows, and every package must have a row."""
 
 import ast
+import importlib.util
 import re
 from pathlib import Path
 
@@ -20,31 +21,14 @@ def allowed() -> dict[str, set[str]]:
     return rows
 
 
-def package_of(path: Path) -> str:
-    rel = path.relative_to(SRC)
-    return rel.parts[0] if len(rel.parts) > 1 else rel.stem
-
-
-def imports(path: Path) -> set[str]:
-    """Our top-level packages that `path` imports (absolute and relative imports)."""
-    rel = path.relative_to(SRC)
-    out = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            if node.level == 0:
-                names = [node.module or ""]
-            else:  # relative: resolve against the file's package
-                base = ["quadpilot", *rel.parts[:-1]][: len(rel.parts) - node.level + 1]
-                names = [".".join([*base, *([node.module] if node.module else [])])]
-        else:
-            continue
-        for name in names:
-            parts = name.split(".")
-            if parts[0] == "quadpilot" and len(parts) > 1:
-                out.add(parts[1])
-    return out
+# Which package a file belongs to and which of ours it imports: the same reading the drawing in
+# docs/architecture.md is made with (docs/architecture_drawing.py), so the table and the drawing
+# cannot read the code differently.
+_spec = importlib.util.spec_from_file_location("architecture_drawing", ROOT / "docs" / "architecture_drawing.py")
+_drawing = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_drawing)
+package_of = _drawing.package_of
+imports = _drawing.imported_packages
 
 
 def test_the_table_has_a_row_for_every_package_and_nothing_else():
