@@ -407,6 +407,13 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_file(str(e))
     except ValueError as e:  # the backend cannot run here (e.g. --backend c without a C compiler)
         return _bad_flag(str(e))
+    if args.vehicle is not None and hasattr(policy, "fly_on"):  # a contract policy flies the vehicle asked for
+        from quadpilot.core.vehicle_file import resolve_vehicle
+
+        try:
+            policy.fly_on(resolve_vehicle(args.vehicle))
+        except ValueError as e:
+            return _bad_flag(f"--vehicle {args.vehicle}: {e}")
     task = args.task or policy.info.task
     if args.node_only and (task == "circle" or policy.info.layout.tracks):
         return _bad_flag(f"--node-only flies to a fixed --target; {policy_path} is a {policy.info.task} policy")

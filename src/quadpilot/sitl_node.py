@@ -42,9 +42,10 @@ from quadpilot.link.spin import LOCKSTEP_SPIN_S, MAX_SPIN_US
 
 POLICY_HELP = (
     "ONNX file from quad-export, or raptor:foundation (the RAPTOR policy PX4's mc_raptor flies, flown through its "
-    "contract, runtime.raptor; or an RLtools .h5 checkpoint of its shape)."
+    "contract, runtime.raptor; or an RLtools .h5 checkpoint of its shape, or the policy.tar mc_raptor loads, from "
+    "quad-export --format px4-raptor)."
 )
-POLICY_FILE = "an ONNX policy file from quad-export, or an RLtools .h5 checkpoint"
+POLICY_FILE = "an ONNX policy file from quad-export, an RLtools .h5 checkpoint or a policy.tar"
 RAPTOR_NAME = "raptor:"
 """A policy argument starting so is a name the runtime knows (runtime.raptor), not a file."""
 MAX_FALLBACK_FRACTION = 0.10

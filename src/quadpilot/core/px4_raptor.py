@@ -138,6 +138,38 @@ def observation(
     return np.array(out, np.float32)
 
 
+def observation_batch(state, target, heading, previous_action, out: np.ndarray | None = None) -> np.ndarray:
+    """`observation` for N vehicles at once (for training): state (N, 12), target (N, 3), heading
+    (N,), previous action (N, 4), the setpoint velocity 0 (hover); returns (N, 22) float32 (into
+    `out` if given). Computed in float64, as `observation` computes, then rounded."""
+    s = np.asarray(state, np.float64)
+    roll, pitch, yaw = s[:, 6], s[:, 7], s[:, 8]
+    c, sn = np.cos(np.asarray(heading, np.float64)), np.sin(np.asarray(heading, np.float64))
+    sr, cr, sp, cp, sy, cy = np.sin(roll), np.cos(roll), np.sin(pitch), np.cos(pitch), np.sin(yaw), np.cos(yaw)
+    rot = np.empty((len(s), 3, 3))
+    rot[:, 0] = np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], 1)
+    rot[:, 1] = np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], 1)
+    rot[:, 2] = np.stack([-sp, cp * sr, cp * cr], 1)
+    e = s[:, 0:3] - np.asarray(target, np.float64)
+    v = s[:, 3:6]
+    out = np.empty((len(s), OBS_DIM), np.float32) if out is None else out
+    cc, ss = c[:, None], sn[:, None]
+    out[:, 0] = c * e[:, 0] + sn * e[:, 1]
+    out[:, 1] = -sn * e[:, 0] + c * e[:, 1]
+    out[:, 2] = e[:, 2]
+    out[:, 3:6] = cc * rot[:, 0] + ss * rot[:, 1]
+    out[:, 6:9] = -ss * rot[:, 0] + cc * rot[:, 1]
+    out[:, 9:12] = rot[:, 2]
+    out[:, 12] = c * v[:, 0] + sn * v[:, 1]
+    out[:, 13] = -sn * v[:, 0] + c * v[:, 1]
+    out[:, 14] = v[:, 2]
+    np.clip(out[:, 0:3], -MAX_POSITION_ERROR_M, MAX_POSITION_ERROR_M, out=out[:, 0:3])
+    np.clip(out[:, 12:15], -MAX_VELOCITY_ERROR_M_S, MAX_VELOCITY_ERROR_M_S, out=out[:, 12:15])
+    out[:, 15:18] = s[:, 9:12]
+    out[:, 18:22] = previous_action
+    return out
+
+
 def _clip(v: float, limit: float) -> float:
     return limit if v > limit else -limit if v < -limit else v
 
@@ -202,15 +234,46 @@ def observation_ned(
     return np.array(out, np.float32)
 
 
-def motor_commands(action) -> np.ndarray:
+def motor_commands(action, order=MOTOR_FROM_POLICY) -> np.ndarray:
     """The policy's 4 outputs (Crazyflie order, clamped to [−1, 1] as the executor does) → the 4
-    motor commands in [0, 1] mc_raptor writes to actuator_motors, PX4 quad-X order: (a + 1)/2."""
-    return _commands(_clamped(np.asarray(action, np.float32).reshape(ACTION_DIM)))
+    motor commands in [0, 1] mc_raptor writes to actuator_motors, PX4 quad-X order: (a + 1)/2.
+    `order`: output i takes policy output order[i] (`policy_order` of another rotor numbering)."""
+    return _commands(_clamped(np.asarray(action, np.float32).reshape(ACTION_DIM)), np.asarray(order))
 
 
 _ONE, _TWO = np.float32(1.0), np.float32(2.0)
 _LOW, _HIGH = np.full(ACTION_DIM, -1.0, np.float32), np.full(ACTION_DIM, 1.0, np.float32)
 _ORDER = np.array(MOTOR_FROM_POLICY)
+_POLICY_CORNERS = ((True, True), (False, True), (False, False), (True, False))
+"""The policy's motors, Crazyflie order, as (forward, right) in body FRD: front-right, back-right,
+back-left, front-left."""
+_PX4_SPIN = {(True, True): "ccw", (False, False): "ccw", (True, False): "cw", (False, True): "cw"}
+"""PX4 quad-X's spin directions by corner (4001_quad_x: front-right and back-left CCW), the ones
+mc_raptor's fixed remap assumes."""
+
+
+def policy_order(vehicle) -> tuple[int, ...]:
+    """For a vehicle's rotors (output order, `VehicleParams.rotors`, None: PX4's quad-X), the policy
+    output each output takes: mc_raptor's remap (`MOTOR_FROM_POLICY`) for PX4's quad-X numbering, the
+    same corners for any other numbering of a quad-X (RotorPy's Hummingbird numbers them front-left
+    first). ValueError, one line, for a frame whose rotors are not one per corner with PX4's spins:
+    the policy cannot fly it."""
+    rotors = getattr(vehicle, "rotors", None)
+    if rotors is None:
+        return MOTOR_FROM_POLICY
+    corners = [(r.x > 0, r.y > 0) for r in rotors]
+    if len(rotors) != ACTION_DIM or any(r.x == 0 or r.y == 0 for r in rotors) or len(set(corners)) != ACTION_DIM:
+        raise ValueError(
+            f"vehicle {getattr(vehicle, 'name', '?')!r}: the px4-raptor contract flies a quad-X, one rotor per "
+            "corner; this frame is not one"
+        )
+    for r, corner in zip(rotors, corners, strict=True):
+        if r.spin != _PX4_SPIN[corner]:
+            raise ValueError(
+                f"vehicle {getattr(vehicle, 'name', '?')!r}: the rotor at x={r.x:g}, y={r.y:g} spins {r.spin}; the "
+                f"px4-raptor contract needs PX4 quad-X's spins (front-right and back-left ccw)"
+            )
+    return tuple(_POLICY_CORNERS.index(c) for c in corners)
 
 
 def _clamped(a: np.ndarray) -> np.ndarray:
@@ -219,8 +282,8 @@ def _clamped(a: np.ndarray) -> np.ndarray:
     return np.minimum(np.maximum(a, _LOW), _HIGH)
 
 
-def _commands(clamped: np.ndarray) -> np.ndarray:
-    out = clamped[_ORDER]
+def _commands(clamped: np.ndarray, order: np.ndarray = _ORDER) -> np.ndarray:
+    out = clamped[order]
     out += _ONE
     out /= _TWO
     return out
@@ -256,8 +319,10 @@ class Executor:
     advances; otherwise the policy runs on a copy. The raw action is clamped to [−1, 1] and kept as
     the previous action."""
 
-    def __init__(self, step: Step, initial_state: np.ndarray, force_sync: int = 1) -> None:
+    def __init__(self, step: Step, initial_state: np.ndarray, force_sync: int = 1, order=MOTOR_FROM_POLICY) -> None:
         self.step = step
+        self.order = np.asarray(order)
+        """Output i of `control` takes policy output order[i] (`policy_order`)."""
         self.initial_state = np.asarray(initial_state, np.float32)
         self.force_sync = int(force_sync)
         self.reset()
@@ -292,7 +357,7 @@ class Executor:
         self.since_native = 0 if native else self.since_native + 1
         self.last_native = native
         self.previous_action = _clamped(np.asarray(action, np.float32))
-        return _commands(self.previous_action)
+        return _commands(self.previous_action, self.order)
 
 
 def fallback_observation(obs: np.ndarray) -> np.ndarray:

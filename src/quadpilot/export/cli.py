@@ -10,7 +10,10 @@ edges of the training range.
 directory with policy.c (weights as static const float arrays, no heap, libm only) and policy.h
 (the entry point, the observation layout and the output convention). It is generated from the
 ONNX file exported first, and compiled with the system C compiler (if there is one) for the
-parity check. --target cortex-m4f|cortex-m7 also cross-compiles it with arm-none-eabi-gcc into a
+parity check. --format px4-raptor writes, for a policy trained with quad-train --contract px4-raptor,
+the policy.tar PX4's mc_raptor module loads from the SD card (docs/px4.md).
+
+--target cortex-m4f|cortex-m7 also cross-compiles it with arm-none-eabi-gcc into a
 bare-metal image (DIR/policy.elf) that checks the model's golden vectors when it boots and exits
 through semihosting with status 0 only if they match; if qemu-system-arm is installed it is booted
 once (mps2-an386 for the M4F, mps2-an500 for the M7) and the result printed.
@@ -52,10 +55,12 @@ def _check_args(args) -> Path:
         raise _BadFlag(why)
     if args.format == "c":
         out = args.output or ckpt.with_name(f"{ckpt.stem}_c")
+    elif args.format == "px4-raptor":
+        out = args.output or ckpt.parent
     else:
         out = args.output or ckpt.with_suffix(".onnx")
     try:
-        check_output_path(out, "--output", directory=args.format == "c")
+        check_output_path(out, "--output", directory=args.format != "onnx")
     except ValueError as e:
         raise _BadFlag(str(e)) from None
     if args.target is not None and args.format != "c":
@@ -79,9 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument(
         "--format",
-        choices=("onnx", "c"),
+        choices=("onnx", "c", "px4-raptor"),
         default="onnx",
-        help="onnx: an ONNX file with metadata. c: C99 source and header for a microcontroller. Default: onnx",
+        help="onnx: an ONNX file with metadata. c: C99 source and header for a microcontroller. px4-raptor: for a "
+        "policy from quad-train --contract px4-raptor, the policy.tar PX4's mc_raptor module loads (with its "
+        ".sha256 and the same GRU as policy.onnx) in the --output directory (default: the checkpoint's). "
+        "Default: onnx",
     )
     p.add_argument(
         "--target",
@@ -125,6 +133,17 @@ def main(argv: list[str] | None = None) -> int:
             print(f"quad-export: error: --target {args.target}: {e}", file=sys.stderr)
             return 1
     try:
+        if args.format == "px4-raptor":
+            return _main_px4_raptor(args, out)
+        from quadpilot.train.raptor_distill import CONTRACT, is_student_checkpoint
+
+        if is_student_checkpoint(args.checkpoint):
+            print(
+                f"quad-export: error: {args.checkpoint} is a {CONTRACT} policy (quad-train --contract {CONTRACT}); "
+                f"export it with --format {CONTRACT} (it writes policy.tar and the same GRU as policy.onnx)",
+                file=sys.stderr,
+            )
+            return 1
         return _main_c(args, out) if args.format == "c" else _main_onnx(args, out)
     except Exception as e:  # one line, exit 1, for what the checks let through (see _failure)
         message = _failure(e)
@@ -137,9 +156,11 @@ def main(argv: list[str] | None = None) -> int:
 def _failure(e: Exception) -> str | None:
     """The one-line message for an export that failed on its input or its output, None for a bug."""
     from quadpilot.runtime.model import ModelContractError
+    from quadpilot.runtime.rltools_tar import PolicyTarError
+    from quadpilot.train.raptor_distill import StudentCheckpointError
     from quadpilot.train.runs.checkpoint import CheckpointError
 
-    if isinstance(e, (CheckpointError, ModelContractError)):
+    if isinstance(e, (CheckpointError, ModelContractError, StudentCheckpointError, PolicyTarError)):
         return str(e)
     if isinstance(e, OSError):
         return f"{e.filename + ': ' if e.filename else ''}{e.strerror or e}"
@@ -174,6 +195,19 @@ def _report_parity(parity: dict) -> int:
         return 1
     print(f"parity within {PARITY_TOLERANCE:g}: ok")
     return 0
+
+
+def _main_px4_raptor(args, out: Path) -> int:
+    from .px4_raptor_export import export_px4_raptor
+
+    e = export_px4_raptor(args.checkpoint, out)
+    print(
+        f"quad-export: wrote {e.tar} ({e.tar.stat().st_size / 1024:.1f} KiB, mc_raptor's policy type, checkpoint name "
+        f"{e.checkpoint_name!r}), {e.tar.name}.sha256 ({e.sha256[:16]}...) and {e.onnx.name}; the stored example "
+        "replays (mc_raptor's test_policy)"
+    )
+    print("upload: mavproxy.py --master=... then ftp put policy.tar /fs/microsd/raptor/policy.tar (docs/px4.md)")
+    return _report_parity(e.parity)
 
 
 def _main_c(args, out: Path) -> int:

@@ -311,7 +311,7 @@ def load_policy(path: str | os.PathLike, backend: str = "onnxruntime") -> Policy
     ValueError) when there is no working C compiler."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
-    if str(path).startswith("raptor:") or str(path).lower().endswith(".h5"):  # PX4 mc_raptor's policy
+    if str(path).startswith("raptor:") or str(path).lower().endswith((".h5", ".tar")):  # PX4 mc_raptor's policy
         from .raptor import load_raptor
 
         return load_raptor(path, backend)

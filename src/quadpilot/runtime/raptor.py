@@ -4,7 +4,8 @@ module flies, run through the `px4-raptor` contract (`core.px4_raptor`) by our n
     policy = load_raptor("raptor:foundation", backend="numpy")   # or a path to an RLtools .h5 checkpoint
     monitor = SafetyMonitor(policy)
 
-How a user selects it: `quad-sitl raptor:foundation [--vehicle NAME]` (or `quad-sitl CHECKPOINT.h5`);
+How a user selects it: `quad-sitl raptor:foundation [--vehicle NAME]` (or `quad-sitl CHECKPOINT.h5`, or
+`quad-sitl policy.tar`, a policy of the same shape trained here and written by `quad-export --format px4-raptor`);
 `raptor:foundation` is the checkpoint the foundation-policy package ships (the same weights and
 checkpoint name, logs/2025-04-19_16-16-17, as PX4's src/modules/mc_raptor/blob/policy.h). The
 weights are checked (`gru.check_weights`), and the checkpoint's own example is replayed before it
@@ -20,6 +21,7 @@ the observation in the hover layout (`core.px4_raptor.fallback_observation`).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 from pathlib import Path
@@ -54,8 +56,15 @@ def foundation_checkpoint() -> Path:
         ) from None
 
 
-def load_raptor(path, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE) -> RaptorPolicy:
-    """A checked RAPTOR policy from `raptor:foundation` or an RLtools .h5 checkpoint (see the module
+VEHICLE_BESIDE = "vehicle.toml"
+"""A policy.tar's own vehicle, written beside it by quad-export --format px4-raptor: what quad-sitl
+flies it on unless --vehicle says otherwise (policy.tar itself names no airframe: mc_raptor flies
+whatever it is loaded on)."""
+
+
+def load_raptor(path, backend: str = "numpy", vehicle=None) -> RaptorPolicy:
+    """A checked RAPTOR policy from `raptor:foundation`, an RLtools .h5 checkpoint or an RLtools
+    policy.tar (the file mc_raptor loads: `rltools_tar.read_policy_tar` checks it whole; see the module
     docstring); ModelContractError, one line, if not."""
     if backend not in RAPTOR_BACKENDS:
         raise ValueError(f"a RAPTOR policy runs on the {' or '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
@@ -64,13 +73,29 @@ def load_raptor(path, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE) ->
     file = foundation_checkpoint() if str(path) == FOUNDATION else Path(path)
     if not file.is_file():
         raise ModelContractError(f"{file}: no such checkpoint file")
+    if file.suffix.lower() == ".tar":  # the file mc_raptor loads, from quad-export --format px4-raptor
+        from .rltools_tar import PolicyTarError, read_policy_tar
+
+        try:
+            tar = read_policy_tar(file)
+        except PolicyTarError as e:
+            raise ModelContractError(str(e)) from None
+        example = {"input": tar.example_in, "output": tar.example_out}
+        if vehicle is None and (file.parent / VEHICLE_BESIDE).is_file():
+            from quadpilot.core.vehicle_file import VehicleFileError, load_vehicle_file
+
+            try:
+                vehicle = load_vehicle_file(file.parent / VEHICLE_BESIDE)
+            except VehicleFileError as e:
+                raise ModelContractError(f"{path}: its {VEHICLE_BESIDE}: {e}") from None
+        return raptor_from_weights(tar.weights, example, str(path), tar.sha256, backend, vehicle or DEFAULT_VEHICLE)
     weights, example = weights_from_h5(file)
     sha256 = hashlib.sha256(file.read_bytes()).hexdigest()
-    return raptor_from_weights(weights, example, str(path), sha256, backend, vehicle)
+    return raptor_from_weights(weights, example, str(path), sha256, backend, vehicle or DEFAULT_VEHICLE)
 
 
 def raptor_from_weights(
-    weights: dict, example: dict, name: str, sha256: str, backend: str = "numpy", vehicle: str = DEFAULT_VEHICLE
+    weights: dict, example: dict, name: str, sha256: str, backend: str = "numpy", vehicle=DEFAULT_VEHICLE
 ) -> RaptorPolicy:
     """A checked RAPTOR policy from the weight dict (`gru.GRU_KEYS`) and the checkpoint's example
     {"input": (T, B, 22), "output": (T, B, 4)}, whatever read them (an RLtools policy.tar reader
@@ -92,7 +117,7 @@ def raptor_from_weights(
         layout=px4_raptor.PX4_RAPTOR_LAYOUT,
         task="hover",
         control_period_s=1.0 / px4_raptor.TRAINING_RATE_HZ,
-        vehicle=get_preset(vehicle),
+        vehicle=get_preset(vehicle) if isinstance(vehicle, str) else vehicle,
         training_steps=0,
         source_sha256=sha256,
         action_meaning=ACTION_MEANING,
@@ -112,7 +137,7 @@ class RaptorPolicy(Policy):
     def __init__(self, info: ModelInfo, step, backend: str, gyro_rate_hz: float | None = None) -> None:
         super().__init__(info)
         self.backend = backend
-        self.executor = px4_raptor.Executor(step, step.initial_state)
+        self.executor = px4_raptor.Executor(step, step.initial_state, order=px4_raptor.policy_order(info.vehicle))
         self.gyro_rate_hz = gyro_rate_hz
         """Hz, the IMU_GYRO_RATEMAX the executor counts with; None: measured from the first two calls."""
         self.step_s: float | None = None
@@ -128,6 +153,13 @@ class RaptorPolicy(Policy):
         if self.gyro_rate_hz is not None:
             self.executor.force_sync = px4_raptor.force_sync_native(self.gyro_rate_hz)
             self.step_s = 1.0 / self.gyro_rate_hz
+
+    def fly_on(self, vehicle) -> None:
+        """Fly `vehicle` (VehicleParams): the contract knows no airframe, so the policy is the same and
+        only its outputs follow the vehicle's rotor numbering (`px4_raptor.policy_order`; ValueError,
+        one line, for a frame it cannot fly)."""
+        self.executor.order = np.asarray(px4_raptor.policy_order(vehicle))
+        self.info = dataclasses.replace(self.info, vehicle=vehicle)
 
     def own_observation(self, state, target, target_vel, heading, t_us: int) -> np.ndarray:
         """The observation `Raptor::observe` makes of this state (`core.px4_raptor.observation`), at

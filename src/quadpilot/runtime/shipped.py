@@ -2,7 +2,8 @@
 package data under `quadpilot/models/`), so that `pip install .` alone can fly one.
 
     shipped_models()      -> {name: ShippedModel}, every folder that holds a policy.onnx
-    shipped_policy("hover_px4_sih")  -> the path of its policy.onnx, or ValueError naming the choices
+    shipped_policy("hover_px4_sih")  -> the path of its policy.onnx (policy.tar for a policy of PX4
+                                        mc_raptor's contract), or ValueError naming the choices
 
 What each model was trained for is read from its own files: the task, vehicle and architecture from
 the ONNX metadata (`model.read_model`, the same checks as every file this runtime flies) and the
@@ -32,13 +33,22 @@ def models_dir() -> Path:
 class ShippedModel:
     name: str
     path: Path
-    """Its policy.onnx."""
+    """Its policy.tar (a policy of PX4 mc_raptor's contract, `runtime.raptor`) if it has one, else its
+    policy.onnx."""
 
     def describe(self) -> str:
         """One line: task, vehicle, architecture and what its own evaluation measured."""
-        _, info = read_model(self.path)
-        arch = info.architecture["kind"]
-        text = f"{info.task} on {info.vehicle.name} ({info.vehicle.mass:g} kg), {arch}, {info.training_steps:,} steps"
+        if self.path.suffix == ".tar":
+            from .raptor import load_raptor
+
+            info = load_raptor(self.path).info
+            text = f"{info.task} on {info.vehicle.name} ({info.vehicle.mass:g} kg), gru for PX4 mc_raptor (policy.tar)"
+        else:
+            _, info = read_model(self.path)
+            arch = info.architecture["kind"]
+            text = (
+                f"{info.task} on {info.vehicle.name} ({info.vehicle.mass:g} kg), {arch}, {info.training_steps:,} steps"
+            )
         try:
             ev = json.loads((self.path.parent / "eval.json").read_text(encoding="utf-8"))
             text += f"; its evaluation: {100 * float(ev['success_rate']):.0f} % of {int(ev['episodes'])} episodes"
@@ -51,15 +61,17 @@ def shipped_models() -> dict[str, ShippedModel]:
     root = models_dir()
     if not root.is_dir():
         return {}
-    return {
-        d.name: ShippedModel(d.name, d / "policy.onnx")
-        for d in sorted(root.iterdir())
-        if d.is_dir() and (d / "policy.onnx").is_file()
-    }
+    models = {}
+    for d in sorted(root.iterdir()):
+        for name in ("policy.tar", "policy.onnx"):
+            if d.is_dir() and (d / name).is_file():
+                models[d.name] = ShippedModel(d.name, d / name)
+                break
+    return models
 
 
 def shipped_policy(name: str | None = None) -> Path:
-    """The policy.onnx of the shipped model `name` (None: the default, hover); ValueError in one line
+    """The policy file of the shipped model `name` (None: the default, hover); ValueError in one line
     when there is none."""
     name = DEFAULT_MODEL if name is None else name
     models = shipped_models()

@@ -154,6 +154,19 @@ def build_parser() -> argparse.ArgumentParser:
         "file of the same schema (quadpilot.core.vehicle_file). It travels with the policy (checkpoint, ONNX "
         "metadata). Default: seed.",
     )
+    p.add_argument(
+        "--contract",
+        choices=("px4-raptor",),
+        help="Train a policy for a flight controller's fixed contract: px4-raptor, the policy PX4's mc_raptor "
+        "module loads (dense 22-16, GRU 16, dense 16-4; its 22 inputs and 4 motor outputs), distilled from "
+        "an MLP hover teacher (--teacher, else the shipped one of the vehicle, else one trained first). "
+        "Then quad-export --format px4-raptor writes its policy.tar. Default: none (our own layouts).",
+    )
+    p.add_argument(
+        "--teacher",
+        metavar="FILE",
+        help="--contract px4-raptor: the quad-train policy.pt (MLP, hover, the same vehicle) to distill.",
+    )
     _add_randomize_option(p)
     _add_sensor_options(p)
     p.add_argument(
@@ -311,6 +324,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.snapshot_every and args.algo == "sb3":
             raise UsageError("--snapshot-every is for our PPO and SAC; --algo sb3 writes no snapshots")
         resolve_vehicle(args)
+        if args.teacher is not None and args.contract is None:
+            raise UsageError("--teacher is for --contract px4-raptor (the policy distilled from it)")
+        if args.contract is not None:
+            from . import raptor_cli
+
+            return raptor_cli.train_from_cli(args, argv)
         if args.algo == "sb3":
             from . import sb3_baseline
 
@@ -340,7 +359,9 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(e, UnknownVehicleError):  # --vehicle: neither a shipped name nor a file path
             print(f"quad-train: error: --vehicle: {e}", file=sys.stderr)
             return 2
-        if isinstance(e, (CheckpointError, NonFiniteError, RunDirBusy, VehicleFileError)):
+        from .raptor_distill import StudentCheckpointError
+
+        if isinstance(e, (CheckpointError, NonFiniteError, RunDirBusy, VehicleFileError, StudentCheckpointError)):
             print(f"quad-train: error: {e}", file=sys.stderr)
             return 1
         raise

@@ -1,0 +1,103 @@
+"""`quad-export --format px4-raptor policy.pt`: the file PX4's mc_raptor module loads, from a policy
+trained with `quad-train --contract px4-raptor`.
+
+Writes, beside each other (OUT defaults to the checkpoint's folder):
+- policy.tar: RLtools' checkpoint layout of mc_raptor's policy type (`runtime.rltools_tar`): the
+  weights, and the example mc_raptor's `Raptor::test_policy` replays, 2 sequences of 500 steps: the
+  contract's observations of two flights of this policy in our simulator from seeded starts (run by
+  the runtime's NumPy step, so that the bytes do not depend on torch), and the runtime's outputs on
+  them. The same policy gives the same bytes.
+- policy.tar.sha256 (`sha256sum -c` reads it): to compare with the file after the upload.
+- vehicle.toml: the vehicle it was trained for, which quad-sitl flies it on unless --vehicle says
+  otherwise (policy.tar names no airframe).
+- policy.onnx: the same step as ONNX with explicit state (obs, h_in → action, h_out; the learned
+  initial state in the metadata `quadpilot.initial_hidden_state`), for ONNX Runtime.
+Then it checks parity: torch (the trained network), the runtime's NumPy step, ONNX Runtime, and the
+file read back through the runtime's reader (`rltools_tar.read_policy_tar`, which replays all of the
+example), on the example's 1,000 steps run as sequences from the initial state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from quadpilot.console import atomic_write
+from quadpilot.core.vehicle_file import vehicle_to_toml
+from quadpilot.runtime import gru, rltools_tar
+from quadpilot.runtime.raptor import VEHICLE_BESIDE
+from quadpilot.train.envs import EnvConfig
+from quadpilot.train.raptor_distill import fly, load_student, numpy_policy
+
+EXAMPLE_SEED = 2025
+"""Seed of the two flights the example is taken from."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Exported:
+    tar: Path
+    sha256: str
+    onnx: Path
+    parity: dict
+    checkpoint_name: str
+
+
+def checkpoint_name(ckpt: dict) -> str:
+    """The name mc_raptor logs for the file: the vehicle and the contract, within RLtools' characters."""
+    vehicle = str(ckpt.get("env_config", {}).get("vehicle", {}).get("name", "vehicle"))
+    name = "".join(c if c.isalnum() or c in "_.+-" else "_" for c in vehicle)[:60] or "vehicle"
+    return f"quadpilot/{name}/px4-raptor"
+
+
+def example(weights: dict, cfg: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(input (500, 2, 22), output (500, 2, 4)): two flights of the policy, and its outputs on them."""
+    step = gru.GruStep(weights)
+    cfg = dataclasses.replace(cfg, episode_steps=rltools_tar.EXAMPLE_STEPS)
+    xs = fly(numpy_policy(step), cfg, rltools_tar.EXAMPLE_BATCH, np.random.default_rng(EXAMPLE_SEED))["obs"]
+    return xs, gru.sequences(step, xs)
+
+
+def export_px4_raptor(checkpoint: Path, out_dir: Path) -> Exported:
+    """Write policy.tar, its SHA-256 and policy.onnx into out_dir (see the module docstring)."""
+    student, ckpt = load_student(checkpoint)
+    weights = student.weights()
+    cfg = EnvConfig.from_json(ckpt["env_config"])
+    ex_in, ex_out = example(weights, cfg)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    name = checkpoint_name(ckpt)
+    tar = out_dir / "policy.tar"
+    digest = rltools_tar.write_policy_tar(tar, weights, ex_in, ex_out, checkpoint_name=name)
+    onnx_path = out_dir / "policy.onnx"
+    model = gru.gru_onnx(weights)
+    meta = {
+        "quadpilot.contract": "px4-raptor",
+        "quadpilot.initial_hidden_state": json.dumps([float(v) for v in weights["layers/1/initial_hidden_state"]]),
+        "quadpilot.vehicle": json.dumps(ckpt.get("env_config", {}).get("vehicle")),
+    }
+    for k, v in meta.items():
+        model.metadata_props.add(key=k, value=v)
+    atomic_write(onnx_path, lambda f: f.write(model.SerializeToString()))
+    toml = vehicle_to_toml(cfg.params).encode()
+    atomic_write(out_dir / VEHICLE_BESIDE, lambda f: f.write(toml))
+    return Exported(tar, digest, onnx_path, parity(student, weights, tar, ex_in), name)
+
+
+def parity(student, weights: dict, tar: Path, xs: np.ndarray) -> dict:
+    """Largest |difference| in raw action against torch over the sequences xs (T, B, 22), for each
+    runtime path."""
+    with torch.no_grad():
+        ref, _ = student(torch.from_numpy(xs))
+    ref = ref.numpy().astype(np.float64)
+    back = rltools_tar.read_policy_tar(tar)
+    paths = {
+        "numpy": gru.GruStep(weights),
+        "onnxruntime": gru.OnnxGruStep(weights),
+        "policy.tar read back (numpy)": gru.GruStep(back.weights),
+    }
+    out = {"observations": int(xs.shape[0] * xs.shape[1])}
+    out.update({k: float(np.max(np.abs(gru.sequences(step, xs) - ref))) for k, step in paths.items()})
+    return out

@@ -1,0 +1,138 @@
+"""`quad-train --task hover --contract px4-raptor [--vehicle NAME|FILE] [--teacher FILE] --out DIR`:
+find or train the teacher, then distill it into the policy PX4's mc_raptor loads
+(`raptor_distill`). The run directory gets config.json (with the command and the wall time from start
+to the student's evaluation), and, when no teacher was given or shipped, the teacher's own run in
+DIR/teacher."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+import shlex
+import time
+from pathlib import Path
+
+from quadpilot.console import UsageError
+
+from .raptor_distill import CONTRACT, DistillConfig, distill
+
+CONTRACTS = (CONTRACT,)
+TEACHER_DIR = "teacher"
+CHECKS = (
+    ("algo", ("ppo",), "--algo: the px4-raptor policy is distilled from our PPO's MLP; use --algo ppo"),
+    ("arch", (None, "mlp"), "--arch: the px4-raptor policy's shape is fixed (blob/policy.h); its teacher is an MLP"),
+    ("resume", (False,), "--resume: a px4-raptor distillation is not resumable (it takes minutes); run it again"),
+)
+
+
+def check(args) -> None:
+    """UsageError (one line) for an option the contract's training cannot honour."""
+    if args.task != "hover":
+        raise UsageError(f"--contract {CONTRACT} trains hover (mc_raptor holds a setpoint); not --task {args.task}")
+    for name, allowed, why in CHECKS:
+        if getattr(args, name, allowed[0]) not in allowed:
+            raise UsageError(why)
+
+
+def _same_vehicle(a, b) -> bool:
+    return dataclasses.replace(a, name="") == dataclasses.replace(b, name="")
+
+
+def shipped_teacher(vehicle) -> Path | None:
+    """The shipped MLP hover policy (policy.pt) trained for this vehicle, if there is one."""
+    from quadpilot.core.params import VehicleParams
+    from quadpilot.runtime.shipped import models_dir
+
+    root = models_dir()
+    for d in sorted(root.iterdir()) if root.is_dir() else ():
+        try:
+            config = json.loads((d / "config.json").read_text(encoding="utf-8"))
+            env = config["env"]
+            if env["task"] != "hover" or config["ppo"]["arch"] != "mlp" or env.get("randomization"):
+                continue
+            if env.get("sensor_noise") or not (d / "policy.pt").is_file():
+                continue
+            if _same_vehicle(VehicleParams(**env["vehicle"]), vehicle):
+                return d / "policy.pt"
+        except (OSError, ValueError, KeyError, TypeError):
+            continue  # a folder that is not a quad-train run
+    return None
+
+
+def distill_config(args, episode_steps: int) -> DistillConfig:
+    """--seed, --num-envs (drones per iteration), --total-steps (simulated steps in all: iterations of
+    num_envs episodes) and --set NAME=VALUE (a DistillConfig field) as the distillation's settings."""
+    from .options import parse_overrides
+
+    values = parse_overrides(args.set, DistillConfig, CONTRACT)
+    for flag, name in (("seed", "seed"), ("num_envs", "num_envs")):
+        if getattr(args, flag, None) is not None:
+            values.setdefault(name, getattr(args, flag))
+    if args.total_steps is not None:
+        per_iteration = values.get("num_envs", DistillConfig.num_envs) * episode_steps
+        values.setdefault("iterations", max(1, -(-args.total_steps // per_iteration)))
+    try:
+        return DistillConfig(**values)
+    except ValueError as e:
+        raise UsageError(f"--contract {CONTRACT}: {e}") from None
+
+
+def train_from_cli(args, argv: list[str]) -> int:
+    from .options import _vehicle
+    from .runs.checkpoint import load_policy
+    from .runs.loop import Progress, train
+
+    check(args)
+    start = time.perf_counter()
+    import torch
+
+    # one thread unless told: the GRU's small products gain nothing from more, and lose much to a busy CPU
+    torch.set_num_threads(args.threads or 1)
+    vehicle = _vehicle(args)
+    out = Path(args.out or f"runs/hover-px4-raptor-{vehicle.name}")
+    out.mkdir(parents=True, exist_ok=True)
+    if args.teacher is not None:
+        teacher_path, how = Path(args.teacher), "given"
+    elif (found := shipped_teacher(vehicle)) is not None:
+        teacher_path, how = found, "shipped"
+    else:
+        teacher_args = copy.copy(args)
+        teacher_args.out, teacher_args.contract = str(out / TEACHER_DIR), None
+        print(f"quad-train: no shipped teacher flies {vehicle.name}: training one first in {teacher_args.out}")
+        status = train(teacher_args, argv)
+        if status != 0:
+            return status
+        teacher_path, how = out / TEACHER_DIR / "policy.pt", "trained"
+    teacher = load_policy(teacher_path)
+    if not _same_vehicle(teacher.env_config.params, vehicle):
+        raise UsageError(
+            f"--teacher {teacher_path} flies {teacher.env_config.params.name}, not {vehicle.name}: give the teacher "
+            "of the same vehicle"
+        )
+    cfg = teacher.env_config
+    dc = distill_config(args, cfg.episode_steps)
+    label = f"quad-train hover ({CONTRACT})"
+    progress = Progress(label, 0, dc.iterations * dc.num_envs * cfg.episode_steps)
+    try:
+        evaluation = distill(teacher, cfg, out, dc, teacher_source=f"{how}: {teacher_path}", progress=progress)
+    finally:
+        progress.close()
+    wall = time.perf_counter() - start
+    config = {
+        "schema": "quadpilot.run/1",
+        "algo": "distill",  # not a PPO run: the teacher's is (DIR/teacher, or the shipped one named here)
+        "contract": CONTRACT,
+        "command": shlex.join(["quad-train", *argv]),
+        "teacher": {"how": how, "path": str(teacher_path)},
+        "distill": dataclasses.asdict(dc),
+        "env": cfg.to_json(),
+        "wall_s": wall,
+    }
+    (out / "config.json").write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
+    print(
+        f"quad-train: {out}/policy.pt: success {evaluation['success_rate']:.0%} of {evaluation['episodes']} episodes, "
+        f"mean error over the last 2 s {100 * evaluation['mean_error_last_window_m']:.2f} cm "
+        f"({wall:.0f} s); next: quad-export --format px4-raptor {out}/policy.pt"
+    )
+    return 0
