@@ -80,13 +80,15 @@ def ours_250(tmp: Path) -> dict:
         sim.wait(timeout=60)
 
 
-def rotorpy(rate: int, mavlink: int, tmp: Path) -> dict:
+def rotorpy(rate: int, mavlink: int, tmp: Path, policy: str = "raptor:foundation", vehicle: str = "sih") -> dict:
+    """One flight of `policy` in RotorPy's PX4 simulator (`vehicle`: its sih or hummingbird airframe), as
+    tests/sitl/test_rotorpy.py flies it, and RotorPy's ground truth over the last 2 s."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("rotorpy_flight_test", ROOT / "tests/sitl/test_rotorpy.py")
     t = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(t)
-    case = t.RotorPyFlight(Path("raptor:foundation"), rate, mavlink, max_error_m=0.1, target=(0.6, -0.5, 0.55))
+    case = t.RotorPyFlight(Path(policy), rate, mavlink, max_error_m=0.1, vehicle=vehicle, target=(0.6, -0.5, 0.55))
     record, summary, _, node = t.fly(case, tmp)
     if node.returncode != 0:
         raise SystemExit(f"RotorPy flight at {rate} Hz: quad-sitl exited {node.returncode}: {node.stderr.strip()}")
@@ -96,6 +98,8 @@ def rotorpy(rate: int, mavlink: int, tmp: Path) -> dict:
     target = np.array([0.0, 0.0, t.START_UP_M]) + np.array(case.target) * (scale, scale, 1.0)
     x = np.array([r["x"] for r in rows])
     return {
+        "policy": policy,
+        "vehicle": vehicle,
         "rate_hz": rate,
         "mavlink": mavlink,
         "target_enu_m": list(case.target),

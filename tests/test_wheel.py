@@ -16,6 +16,11 @@ ROOT = Path(__file__).parents[1]
 MODELS = sorted(d.name for d in (ROOT / "models").iterdir() if (d / "policy.onnx").is_file())
 
 
+def policy_file(name: str) -> str:
+    """What quad-sitl flies for a shipped model: policy.tar for one of PX4 mc_raptor's contract."""
+    return "policy.tar" if (ROOT / "models" / name / "policy.tar").is_file() else "policy.onnx"
+
+
 def _run(cmd, cwd, timeout=900):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout, check=False)
@@ -68,7 +73,7 @@ def test_the_installed_wheel_flies_the_shipped_model(installed, name):
     out = _run([str(bin_ / "quad-sitl"), "--model", name, "--episodes", "1", "--gcs", "none", "--json", "s.json"], tmp)
     assert out.returncode == 0, out.stdout[-1500:] + out.stderr[-1500:]
     assert re.search(r"success rate\s+100%", out.stdout), out.stdout
-    assert f"quadpilot/models/{name}/policy.onnx" in out.stdout
+    assert f"quadpilot/models/{name}/{policy_file(name)}" in out.stdout
 
 
 def test_the_default_is_the_shipped_hover_model_and_a_wrong_name_is_one_line(installed):

@@ -161,3 +161,35 @@ def test_recurrent_hover_onnx_file_runs_with_explicit_state():
     assert (MODELS / "hover_lstm" / "policy.pt").stat().st_size < 1024 * 1024
     obs = np.zeros(18, np.float32)
     assert np.all(np.isfinite(runtime.act(obs)))
+
+
+# --- the policies of PX4 mc_raptor's contract ------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("folder", "vehicle"),
+    [("hover_px4_raptor_sih", "px4_sih_quadx"), ("hover_px4_raptor_hummingbird", "rotorpy_hummingbird")],
+)
+def test_px4_raptor_policies_fly_from_their_policy_tar_within_the_hover_rule(folder, vehicle):
+    """The file mc_raptor loads, run by the runtime's NumPy step through the contract, in the batched
+    simulator from seeded starts (other than eval.json's); eval.json holds the 100-episode figures."""
+    import numpy as np
+
+    from quadpilot.core.mission import HEADING_TOLERANCE_DEG, YAW_RATE_TOLERANCE_RAD_S
+    from quadpilot.runtime.gru import GruStep
+    from quadpilot.runtime.rltools_tar import read_policy_tar
+    from quadpilot.train.envs import EnvConfig
+    from quadpilot.train.raptor_distill import fly, load_student, numpy_policy
+
+    _, ckpt = load_student(MODELS / folder / "policy.pt")
+    cfg = EnvConfig.from_json(ckpt["env_config"])
+    assert cfg.params.name == vehicle
+    tar = read_policy_tar(MODELS / folder / "policy.tar")  # checks it whole, and its SHA-256 beside it
+    r = fly(numpy_policy(GruStep(tar.weights)), cfg, 20, np.random.default_rng(2024))["figures"]
+    assert r["success_rate"] >= 0.95 and r["mean_error_last_window_m"] <= 0.05, r
+    stored = json.loads((MODELS / folder / "eval.json").read_text())
+    assert stored["success_rate"] >= 0.95 and stored["episodes"] == 100 and stored["contract"] == "px4-raptor"
+    assert stored["max_mean_abs_yaw_rate_last_window_rad_s"] <= YAW_RATE_TOLERANCE_RAD_S
+    assert stored["max_mean_heading_error_last_window_deg"] <= HEADING_TOLERANCE_DEG
+    config = json.loads((MODELS / folder / "config.json").read_text())
+    assert config["command"].startswith("quad-train --task hover --contract px4-raptor --vehicle ")

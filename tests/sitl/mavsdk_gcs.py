@@ -28,10 +28,11 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def policy_copy(tmp: Path) -> Path:
-    """The shipped hover model copied into `tmp` (nothing may write next to models/)."""
-    shutil.copytree(SHIPPED_HOVER.parent, tmp / "hover")
-    return tmp / "hover" / SHIPPED_HOVER.name
+def policy_copy(tmp: Path, policy: Path = SHIPPED_HOVER) -> Path:
+    """A shipped model (the hover model unless `policy` names another's file) copied into `tmp`
+    (nothing may write next to models/)."""
+    shutil.copytree(policy.parent, tmp / policy.parent.name)
+    return tmp / policy.parent.name / policy.name
 
 
 def start_vehicle(

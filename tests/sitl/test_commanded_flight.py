@@ -25,6 +25,7 @@ from mavsdk.plugins.mission import MissionItem, MissionPlan
 from mavsdk.plugins.telemetry import FlightMode, LandedState
 from mavsdk_gcs import (
     HOME,
+    SHIPPED_HOVER,
     Track,
     connect,
     degrees,
@@ -117,11 +118,16 @@ async def commanded_flight(port: int) -> dict:
     return seen
 
 
-def test_mavsdk_flies_the_hover_policy_from_the_ground_and_back(tmp_path):
+PX4_RAPTOR = SHIPPED_HOVER.parents[1] / "hover_px4_raptor_sih" / "policy.tar"
+"""The policy of PX4 mc_raptor's contract trained here, flown from the file mc_raptor loads."""
+
+
+@pytest.mark.parametrize("policy", [SHIPPED_HOVER, PX4_RAPTOR], ids=lambda p: p.parent.name)
+def test_mavsdk_flies_the_hover_policy_from_the_ground_and_back(tmp_path, policy):
     port = free_udp_port()
     out = tmp_path / "summary.json"
     start = time.monotonic()
-    proc = start_vehicle(policy_copy(tmp_path), port, out)
+    proc = start_vehicle(policy_copy(tmp_path, policy), port, out)
     try:
         seen = asyncio.run(asyncio.wait_for(commanded_flight(port), 80))
     finally:

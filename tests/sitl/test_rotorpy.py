@@ -71,6 +71,8 @@ MODELS = SHIPPED_HOVER.parents[1]
 SIH = MODELS / "hover_px4_sih" / "policy.onnx"  # trained for PX4's SIH quad-X (vehicles/px4_sih_quadx.toml)
 # trained from a vehicle file only: tests/data/vehicles/rotorpy_hummingbird.toml
 HUMMINGBIRD = MODELS / "hover_hummingbird" / "policy.onnx"
+RAPTOR_SIH = MODELS / "hover_px4_raptor_sih" / "policy.tar"  # quad-train --contract px4-raptor
+RAPTOR_HUMMINGBIRD = MODELS / "hover_px4_raptor_hummingbird" / "policy.tar"
 # The shipped hover policy was trained for another vehicle: its hover command (0.677 of 2000 rad/s)
 # gives SIH's rotors 677 of the 700 rad/s they need, and it has no integral action to take up the
 # difference, so it hovers some centimetres low (bound 10 cm). The policies trained for the vehicle
@@ -80,6 +82,10 @@ FLIGHTS = [
     RotorPyFlight(SIH, 100, 1, max_error_m=0.05, target=(0.6, -0.5, 0.55)),
     RotorPyFlight(SIH, 250, 2, max_error_m=0.05, target=(0.6, -0.5, 0.55)),
     RotorPyFlight(HUMMINGBIRD, 100, 1, max_error_m=0.05, vehicle="hummingbird", target=(-0.5, 0.7, 0.3)),
+    # the policies of PX4 mc_raptor's contract trained here, flown from their policy.tar (the GRU advancing
+    # at 100 Hz; the Hummingbird's rotors numbered as RotorPy numbers them, from its vehicle.toml)
+    RotorPyFlight(RAPTOR_SIH, 100, 1, max_error_m=0.05, target=(0.6, -0.5, 0.55)),
+    RotorPyFlight(RAPTOR_HUMMINGBIRD, 100, 1, max_error_m=0.05, vehicle="hummingbird", target=(-0.5, 0.7, 0.3)),
 ]
 
 

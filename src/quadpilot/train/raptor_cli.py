@@ -60,16 +60,17 @@ def shipped_teacher(vehicle) -> Path | None:
     return None
 
 
-def distill_config(args, episode_steps: int) -> DistillConfig:
+def distill_config(args, episode_steps: int, sizes: bool = True) -> DistillConfig:
     """--seed, --num-envs (drones per iteration), --total-steps (simulated steps in all: iterations of
-    num_envs episodes) and --set NAME=VALUE (a DistillConfig field) as the distillation's settings."""
+    num_envs episodes) and --set NAME=VALUE (a DistillConfig field) as the distillation's settings.
+    sizes=False: --num-envs and --total-steps were the teacher's PPO run's, not the distillation's."""
     from .options import parse_overrides
 
-    values = parse_overrides(args.set, DistillConfig, CONTRACT)
+    values = parse_overrides(args.set, DistillConfig, CONTRACT) if sizes else {}
     for flag, name in (("seed", "seed"), ("num_envs", "num_envs")):
-        if getattr(args, flag, None) is not None:
+        if getattr(args, flag, None) is not None and (sizes or flag == "seed"):
             values.setdefault(name, getattr(args, flag))
-    if args.total_steps is not None:
+    if args.total_steps is not None and sizes:
         per_iteration = values.get("num_envs", DistillConfig.num_envs) * episode_steps
         values.setdefault("iterations", max(1, -(-args.total_steps // per_iteration)))
     try:
@@ -94,8 +95,10 @@ def train_from_cli(args, argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args.teacher is not None:
         teacher_path, how = Path(args.teacher), "given"
+        shown = str(teacher_path)
     elif (found := shipped_teacher(vehicle)) is not None:
         teacher_path, how = found, "shipped"
+        shown = f"models/{found.parent.name}/{found.name}"  # the shipped model's name, not this machine's path
     else:
         teacher_args = copy.copy(args)
         teacher_args.out, teacher_args.contract = str(out / TEACHER_DIR), None
@@ -104,6 +107,7 @@ def train_from_cli(args, argv: list[str]) -> int:
         if status != 0:
             return status
         teacher_path, how = out / TEACHER_DIR / "policy.pt", "trained"
+        shown = str(teacher_path)
     teacher = load_policy(teacher_path)
     if not _same_vehicle(teacher.env_config.params, vehicle):
         raise UsageError(
@@ -111,11 +115,11 @@ def train_from_cli(args, argv: list[str]) -> int:
             "of the same vehicle"
         )
     cfg = teacher.env_config
-    dc = distill_config(args, cfg.episode_steps)
+    dc = distill_config(args, cfg.episode_steps, sizes=how != "trained")  # else the sizes were the teacher's
     label = f"quad-train hover ({CONTRACT})"
     progress = Progress(label, 0, dc.iterations * dc.num_envs * cfg.episode_steps)
     try:
-        evaluation = distill(teacher, cfg, out, dc, teacher_source=f"{how}: {teacher_path}", progress=progress)
+        evaluation = distill(teacher, cfg, out, dc, teacher_source=f"{how}: {shown}", progress=progress)
     finally:
         progress.close()
     wall = time.perf_counter() - start
@@ -124,7 +128,7 @@ def train_from_cli(args, argv: list[str]) -> int:
         "algo": "distill",  # not a PPO run: the teacher's is (DIR/teacher, or the shipped one named here)
         "contract": CONTRACT,
         "command": shlex.join(["quad-train", *argv]),
-        "teacher": {"how": how, "path": str(teacher_path)},
+        "teacher": {"how": how, "path": shown},
         "distill": dataclasses.asdict(dc),
         "env": cfg.to_json(),
         "wall_s": wall,
