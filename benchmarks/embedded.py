@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/embedded.py --out docs/bench/embedded.json
     .venv/bin/python benchmarks/report_embedded.py docs/bench/embedded.json    # the tables of docs/embedded.md
 
-For the shipped hover MLP and hover LSTM and each core (`quadpilot.runtime.ctarget.TARGETS`) it
+For the shipped hover MLP and hover LSTM and each core (`quadpilot.ccode.target.TARGETS`) it
 cross-builds the image `quad-export --format c --target` builds and boots it in QEMU
 (`-icount shift=0`) on the golden vectors, 1,000 random in-envelope observations and a 300-step
 recorded flight (the LSTM's state carried across steps), the inputs of tests/runtime/test_ctarget.py:
@@ -20,8 +20,8 @@ recorded flight (the LSTM's state carried across steps), the inputs of tests/run
   -O2 emits VMUL + VADD, so fewer instructions, but VMLA takes 3 cycles on the Cortex-M4 against 1 + 1
   (ARM DDI 0439B, table 7-1): fewer instructions are not fewer cycles here;
 - the max abs difference of the commands from the NumPy backend.
-With them, the operation-count estimate of cycles on a Cortex-M4F (`cbench.cortex_m4_estimate`,
-its assumptions in `cbench.CORTEX_M4_CYCLES`), the only cycle figure here.
+With them, the operation-count estimate of cycles on a Cortex-M4F (`ccode.bench.cortex_m4_estimate`,
+its assumptions in `ccode.bench.CORTEX_M4_CYCLES`), the only cycle figure here.
 `--quick` runs 100 random observations and a 50-step flight (the smoke test's).
 """
 
@@ -39,10 +39,11 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.runtime import cgen, ctarget
+from quadpilot.ccode import generate as cgen
+from quadpilot.ccode import target as ctarget
+from quadpilot.ccode.bench import cortex_m4_estimate, operation_count
+from quadpilot.modelfile.model import initializer_arrays, read_model
 from quadpilot.runtime.backends import load_policy
-from quadpilot.runtime.cbench import cortex_m4_estimate, operation_count
-from quadpilot.runtime.model import initializer_arrays, read_model
 from quadpilot.train.runs.loop import cpu_model
 
 ROOT = Path(__file__).resolve().parents[1]

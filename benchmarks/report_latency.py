@@ -10,8 +10,8 @@ are met: MLP p50 ≤ 8 µs and p99 ≤ 20 µs on the faster monitored NumPy / ON
 Then the C kernel: its own latency from the timing loop in C (median of the repeats),
 the ctypes call overhead (the `ctypes_c` p50 minus that), what the c backend's `Policy.act` and the
 safety monitor add on top, the target (MLP kernel ≤ 1 µs), and the Cortex-M4F estimate from the
-operation count (`quadpilot.runtime.cgen.cortex_m4_estimate`; its assumptions are documented in
-`cgen.CORTEX_M4_CYCLES`).
+operation count (`quadpilot.ccode.bench.cortex_m4_estimate`; its assumptions are documented in
+`ccode.bench.CORTEX_M4_CYCLES`).
 
 pytest-benchmark stores every round's time (about 9 MB for this suite); `--strip-data` rewrites the
 file without them (p50/p99 are kept in each benchmark's extra_info), small enough to keep in docs/.

@@ -12,7 +12,7 @@ import pytest
 
 import embedded
 import report_embedded
-from quadpilot.runtime import ctarget
+from quadpilot.ccode import target as ctarget
 
 
 def test_embedded_smoke(tmp_path, capsys):

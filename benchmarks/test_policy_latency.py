@@ -12,13 +12,13 @@ For the shipped hover MLP (18 → 64 → 64 → 4, tanh) and an LSTM of the same
     torch_eager                              the exported torch module, batch 1, inference_mode,
                                              including numpy → tensor → numpy (the baseline)
 
-and, in the same run, the C kernel timed by a loop in C (`test_c_kernel_loop`): `cgen.bench_source`
+and, in the same run, the C kernel timed by a loop in C (`test_c_kernel_loop`): `ccode.bench.bench_source`
 generates bench.c, which replays the golden vectors and then times 201 repeats of N back-to-back
 calls (about 1 ms each) with clock_gettime; built with the c backend's flags (-std=c99 -O2), with
 the default expf-based tanh and with libm's tanhf (-DQP_USE_TANHF). The kernel's own latency is the
 median repeat; the ctypes call overhead is ctypes_c minus it. Its extra_info also carries the
-operation count and the Cortex-M4F cycle estimate of `cgen.cortex_m4_estimate` (the per-operation
-figures and their sources are in `cgen.CORTEX_M4_CYCLES`).
+operation count and the Cortex-M4F cycle estimate of `ccode.bench.cortex_m4_estimate` (the per-operation
+figures and their sources are in `ccode.bench.CORTEX_M4_CYCLES`).
 
 Run (the project's addopts disable benchmarks, so enable them here):
 
@@ -44,10 +44,10 @@ import numpy as np
 import pytest
 import torch
 
+from quadpilot.ccode.bench import bench_source, cortex_m4_estimate, operation_count
 from quadpilot.export.onnx_export import deployable, export_onnx
 from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.runtime.cbackend import COMPILE_FLAGS, find_compiler
-from quadpilot.runtime.cgen import bench_source, cortex_m4_estimate, operation_count
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
 from quadpilot.train.runs.checkpoint import load_policy as load_trained
@@ -160,8 +160,8 @@ def test_c_kernel_loop(benchmark, networks, net, tanh, tmp_path):
     """The generated kernel timed by a loop in C (bench.c), its golden vectors checked first."""
     if COMPILER is None:
         pytest.skip("the c backend needs a C compiler")
-    from quadpilot.runtime.cgen import generate, initializers
-    from quadpilot.runtime.model import read_model
+    from quadpilot.ccode.generate import generate, initializers
+    from quadpilot.modelfile.model import read_model
 
     _, onnx_path = networks[net]
     model, info = read_model(onnx_path)

@@ -34,10 +34,12 @@ def imported_packages(path: Path, src: Path = SRC) -> set[str]:
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level == 0:
-                names = [node.module or ""]
+                module = node.module or ""
             else:  # relative: resolve against the file's package
                 base = ["quadpilot", *rel.parts[:-1]][: len(rel.parts) - node.level + 1]
-                names = [".".join([*base, *([node.module] if node.module else [])])]
+                module = ".".join([*base, *([node.module] if node.module else [])])
+            # each name imported: `from quadpilot import console` imports the package console
+            names = [f"{module}.{a.name}" for a in node.names]
         else:
             continue
         for name in names:

@@ -378,7 +378,7 @@ ALLOWED: tuple[tuple[str, str], ...] = (
     ),
     (
         r"\b60°|\b5\s+m\b|\b40°|\(0°,\s+90°\)",
-        "crash and safety envelopes and the tilt penalty's threshold (core.reward, runtime.safety, runtime.model)",
+        "crash and safety envelopes and the tilt penalty's threshold (core.reward, runtime.safety, modelfile.model)",
     ),
     (
         r"\b(?:30|60)\s+ms\b|\b0–30\s+ms|\b30–60\s+ms",

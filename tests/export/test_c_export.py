@@ -24,12 +24,13 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 
+from quadpilot.ccode.bench import bench_source, operation_count
+from quadpilot.ccode.text import ENTRY, RESET, STEP
 from quadpilot.export.c_export import export_c
 from quadpilot.export.cli import main
 from quadpilot.export.onnx_export import _step_sequences, parity_observations, parity_sequences, sha256_of
+from quadpilot.modelfile.model import read_model
 from quadpilot.runtime.cbackend import find_compiler
-from quadpilot.runtime.cgen import ENTRY, RESET, STEP, bench_source, operation_count
-from quadpilot.runtime.model import read_model
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
 from quadpilot.train.runs.checkpoint import load_checkpoint, load_policy, save_untrained_policy
@@ -191,7 +192,7 @@ def test_weights_are_the_onnx_initializers_bit_for_bit(exports, name):
 
 
 def operation_count_for(onnx_path):
-    from quadpilot.runtime.cgen import initializers, network_from_model
+    from quadpilot.ccode.generate import initializers, network_from_model
 
     model, info = read_model(onnx_path)
     return operation_count(network_from_model(info, initializers(model)))

@@ -12,7 +12,7 @@ import pytest
 
 from quadpilot.export.cli import main
 from quadpilot.export.onnx_export import ONNX_SCHEMA, check_parity, export_onnx, parity_sequences, reference_commands
-from quadpilot.runtime.model import read_model
+from quadpilot.modelfile.model import read_model
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
 from quadpilot.train.runs.checkpoint import load_checkpoint, load_policy, save_untrained_policy

@@ -88,3 +88,28 @@ def test_a_checkpoint_of_another_kind_is_one_line_for_either_format(exported, ca
     assert export([str(exported / "policy.pt"), "-o", str(exported / "x.onnx")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "not a px4-raptor policy" in err[0] and "--format px4-raptor" in err[1]
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_policy_onnx_is_the_same_gru_as_its_policy_tar(name):
+    import json
+
+    import onnx
+
+    from quadpilot.runtime import gru
+
+    model = onnx.load(MODELS / name / "policy.onnx")
+    tar = rt.read_policy_tar(MODELS / name / "policy.tar")
+    weights = tar.weights
+    meta = {p.key: p.value for p in model.metadata_props}
+    assert meta["quadpilot.contract"] == "px4-raptor"
+    h0 = np.array(json.loads(meta["quadpilot.initial_hidden_state"]), np.float32)
+    np.testing.assert_array_equal(h0, weights["layers/1/initial_hidden_state"])
+    shipped = gru.OnnxGruStep.__new__(gru.OnnxGruStep)  # the shipped graph, run as the runtime runs its own
+    import onnxruntime as ort
+
+    shipped.session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    shipped.initial_state = h0  # from the file's metadata
+    xs = tar.example_in  # two flights of the policy, 500 steps each
+    diff = np.max(np.abs(gru.sequences(shipped, xs) - gru.sequences(gru.GruStep(weights), xs)))
+    assert diff <= 1e-5

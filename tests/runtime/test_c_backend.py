@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from quadpilot.ccode.generate import SOURCE_NAME, generate, initializers
+from quadpilot.modelfile.model import read_model
 from quadpilot.runtime import CCompilerError, CPolicy, SafetyMonitor, load_policy
 from quadpilot.runtime.cbackend import LIBRARY_NAME, find_compiler
-from quadpilot.runtime.cgen import SOURCE_NAME, generate, initializers
-from quadpilot.runtime.model import read_model
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 HOVER = MODELS / "hover" / "policy.onnx"

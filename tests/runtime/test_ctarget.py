@@ -20,10 +20,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quadpilot.runtime import cgen, charness, ctarget
+from quadpilot.ccode import generate as cgen
+from quadpilot.ccode import harness as charness
+from quadpilot.ccode import target as ctarget
+from quadpilot.modelfile.model import initializer_arrays, read_model
 from quadpilot.runtime.backends import load_policy
 from quadpilot.runtime.cbackend import find_compiler
-from quadpilot.runtime.model import initializer_arrays, read_model
 
 MODELS = Path(__file__).parents[2] / "models"
 TOLERANCE = 1e-5

@@ -19,9 +19,9 @@ import onnx
 import pytest
 from onnx import numpy_helper
 
+from quadpilot.modelfile.model import SCHEMA, ModelContractError
 from quadpilot.runtime.backends import BACKENDS, ObservationShapeError, load_policy
 from quadpilot.runtime.cbackend import find_compiler
-from quadpilot.runtime.model import SCHEMA, ModelContractError
 
 HOVER = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"
 OBS_DIM = 18  # hover layout

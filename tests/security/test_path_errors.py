@@ -364,9 +364,9 @@ needs_cc = pytest.mark.skipif(find_compiler() is None, reason="the c backend nee
 @pytest.fixture
 def cached_hover(monkeypatch, tmp_path):
     """The hover kernel built into a private cache of this test's: (its cache directory, its code)."""
+    from quadpilot.ccode.generate import generate, initializers
+    from quadpilot.modelfile.model import read_model
     from quadpilot.runtime.cbackend import build_library
-    from quadpilot.runtime.cgen import generate, initializers
-    from quadpilot.runtime.model import read_model
 
     monkeypatch.setenv("QUADPILOT_CACHE_DIR", str(tmp_path / "cache"))
     model, info = read_model(SHIPPED_HOVER)

@@ -31,7 +31,7 @@ GRAVITY = 9.81  # m/s^2, standard gravity rounded as in the course brief and the
 
 NUM_MOTORS = 4
 """Rotors per vehicle. The dynamics step any number; the policy's action, the ONNX contract
-(`runtime.contract.NUM_MOTORS`) and the HIL_ACTUATOR_CONTROLS outputs this project fills carry four,
+(`modelfile.contract.NUM_MOTORS`) and the HIL_ACTUATOR_CONTROLS outputs this project fills carry four,
 so a vehicle has exactly four."""
 
 SPINS = {"ccw": +1, "cw": -1}

@@ -3,7 +3,7 @@ controller's microcontroller.
 
 There is one path from a checkpoint to C, through the ONNX file: the checkpoint is exported with
 `export_onnx` (the deployable module: normalisation, network, action clip and motor map), that
-file's contract is checked (`runtime.model.read_model`), and `runtime.cgen.generate` writes the C
+file's contract is checked (`modelfile.model.read_model`), and `ccode.generate.generate` writes the C
 from the file's initializers and metadata. It is the generator the runtime's `c` backend runs on a
 `.onnx` file, fed the same data, so the C cannot drift from the ONNX file: its weights are the
 file's float32 initializers, the header's facts (observation layout, output convention, control
@@ -17,8 +17,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from quadpilot.runtime.cgen import CCode, generate, initializers
-from quadpilot.runtime.model import ModelInfo, read_model
+from quadpilot.ccode.generate import CCode, generate, initializers
+from quadpilot.modelfile.model import ModelInfo, read_model
 
 from .onnx_export import DEFAULT_OPSET, export_onnx
 

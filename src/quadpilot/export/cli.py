@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"quad-export: error: {e}", file=sys.stderr)
         return 2
     if args.target is not None:
-        from quadpilot.runtime.ctarget import CC, CrossToolError, require_tool
+        from quadpilot.ccode.target import CC, CrossToolError, require_tool
 
         try:
             require_tool(CC)
@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _failure(e: Exception) -> str | None:
     """The one-line message for an export that failed on its input or its output, None for a bug."""
-    from quadpilot.runtime.model import ModelContractError
+    from quadpilot.modelfile.model import ModelContractError
     from quadpilot.runtime.rltools_tar import PolicyTarError
     from quadpilot.train.raptor_distill import StudentCheckpointError
     from quadpilot.train.runs.checkpoint import CheckpointError
@@ -244,7 +244,7 @@ def _main_c(args, out: Path) -> int:
 
 def _cross_build(exported, out: Path, target: str) -> int:
     """--target: the bare-metal image, its footprint, and one boot in QEMU where it is installed."""
-    from quadpilot.runtime import ctarget
+    from quadpilot.ccode import target as ctarget
 
     try:
         image = ctarget.build_image(exported.code, exported.info, out, target)

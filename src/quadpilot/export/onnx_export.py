@@ -52,11 +52,11 @@ class OpsetError(ValueError):
 
 def supported_opsets() -> range:
     """The operator set versions `export_onnx` writes exactly: from the exporter's native one to
-    the newest that both the runtime checks graphs for (`runtime.model.OPSETS`) and the installed
+    the newest that both the runtime checks graphs for (`modelfile.model.OPSETS`) and the installed
     onnx package defines (above that the exporter silently falls back to 18)."""
     import onnx
 
-    from quadpilot.runtime.model import OPSETS
+    from quadpilot.modelfile.model import OPSETS
 
     return range(max(NATIVE_OPSET, OPSETS.start), min(OPSETS.stop, onnx.defs.onnx_opset_version() + 1))
 

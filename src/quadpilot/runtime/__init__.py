@@ -8,10 +8,11 @@ Imports numpy, onnx (to read the file) and onnxruntime only: never torch or gymn
 backend needs a C compiler at load time (`cbackend`), nothing else.
 """
 
+from quadpilot.modelfile.model import ModelContractError, ModelInfo, read_model
+
 from .backends import BACKENDS, NumpyPolicy, ObservationShapeError, OnnxRuntimePolicy, Policy, load_policy
 from .cbackend import CCompilerError, CPolicy
 from .fallback import FallbackController, FallbackGains
-from .model import ModelContractError, ModelInfo, read_model
 from .safety import ObservationLimits, SafetyMonitor
 
 __all__ = [

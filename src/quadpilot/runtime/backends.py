@@ -35,10 +35,11 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from quadpilot.modelfile.contract import NUM_MOTORS, ModelContractError, ModelInfo
+from quadpilot.modelfile.model import initializer_arrays, read_model
+from quadpilot.modelfile.network import Network, network_from_model
+
 from .cbackend import CPolicy
-from .contract import NUM_MOTORS, ModelContractError, ModelInfo
-from .model import initializer_arrays, read_model
-from .network import Network, network_from_model
 from .policy import ObservationShapeError as ObservationShapeError  # re-exported: callers catch it from here
 from .policy import Policy
 

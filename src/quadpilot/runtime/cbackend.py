@@ -49,9 +49,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import cgen
-from .contract import NUM_MOTORS, ModelInfo
-from .network import Network, network_from_model
+from quadpilot.ccode import generate as cgen
+from quadpilot.modelfile.contract import NUM_MOTORS, ModelInfo
+from quadpilot.modelfile.network import Network, network_from_model
+
 from .policy import Policy
 
 COMPILE_FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared")

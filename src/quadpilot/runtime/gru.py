@@ -34,8 +34,7 @@ import math
 import numpy as np
 
 from quadpilot.core.px4_raptor import ACTION_DIM, OBS_DIM
-
-from .contract import ModelContractError, one_line, quote
+from quadpilot.modelfile.contract import ModelContractError, one_line, quote
 
 HIDDEN = 16
 GRU_KEYS = {

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from .contract import ModelInfo
+from quadpilot.modelfile.contract import ModelInfo
 
 _FLOAT32 = np.dtype(np.float32)
 _REAL_KINDS = "fiu"

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from .contract import ModelContractError
-from .model import read_model
+from quadpilot.modelfile.contract import ModelContractError
+from quadpilot.modelfile.model import read_model
 
 DEFAULT_MODEL = "hover"
 

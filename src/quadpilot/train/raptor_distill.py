@@ -207,10 +207,12 @@ class StudentCheckpointError(ValueError):
 
 def load_student(path) -> tuple[RaptorStudent, dict]:
     """The student and the checkpoint dict of a px4-raptor policy.pt; StudentCheckpointError if not one."""
+    from .runs.checks import CheckpointError, load_weights_only
+
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # an unreadable or hostile file: weights_only refuses code
-        raise StudentCheckpointError(f"{path}: not a readable checkpoint ({str(e).splitlines()[0][:120]})") from None
+        ckpt = load_weights_only(path)  # tensors and plain data only: nothing in the file runs
+    except CheckpointError as e:
+        raise StudentCheckpointError(f"not a readable checkpoint: {e}") from None
     if not isinstance(ckpt, dict) or ckpt.get("schema") != SCHEMA:
         raise StudentCheckpointError(f"{path}: not a px4-raptor policy (expected schema {SCHEMA!r})")
     try:
@@ -222,9 +224,11 @@ def load_student(path) -> tuple[RaptorStudent, dict]:
 
 def is_student_checkpoint(path) -> bool:
     """True if `path` is a px4-raptor policy.pt (read with weights_only; False for anything else)."""
+    from .runs.checks import CheckpointError, load_weights_only
+
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception:
+        ckpt = load_weights_only(path)
+    except CheckpointError:
         return False
     return isinstance(ckpt, dict) and ckpt.get("schema") == SCHEMA
 

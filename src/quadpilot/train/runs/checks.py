@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from quadpilot.runtime.model import MAX_LAYERS  # a checkpoint is held to the depth a model file may have
+from quadpilot.modelfile.model import MAX_LAYERS  # a checkpoint is held to the depth a model file may have
 
 SCHEMA = "quadpilot.checkpoint/1"
 BIT_GENERATORS = ("PCG64", "PCG64DXSM", "Philox", "SFC64", "MT19937")

@@ -1,7 +1,7 @@
 """C99 source for an exported policy: the one generator behind `quad-export --format c` and the
 runtime's `c` backend.
 
-    from quadpilot.runtime.cgen import generate, initializers
+    from quadpilot.ccode.generate import generate, initializers
     model, info = read_model("policy.onnx")
     code = generate(info, initializers(model))   # code.header (policy.h), code.source (policy.c)
 
@@ -61,14 +61,7 @@ import numpy as np
 
 from quadpilot.core.mission import TASKS
 from quadpilot.core.observation import ObsLayout, get_layout
-
-# the timing program and the cost estimates live in cbench; imported here too for existing callers
-from .cbench import CORTEX_M4_CYCLES as CORTEX_M4_CYCLES
-from .cbench import bench_source as bench_source
-from .cbench import cortex_m4_estimate as cortex_m4_estimate
-from .cbench import operation_count as operation_count
-from .ctext import ENTRY, GENERATOR, HEADER_NAME, RESET, SOURCE_NAME, STEP, ascii_text, c_array, c_float, clamp, wrap
-from .model import (
+from quadpilot.modelfile.model import (
     ACTION_MEANING,
     NUM_MOTORS,
     SHA256_PATTERN,
@@ -77,7 +70,10 @@ from .model import (
     ModelInfo,
     initializer_arrays,
 )
-from .network import FLT_MAX, Dense, Network, network_from_model
+from quadpilot.modelfile.network import FLT_MAX, Dense, Network, network_from_model
+
+# the timing program and the cost estimates live in cbench; imported here too for existing callers
+from .text import ENTRY, GENERATOR, HEADER_NAME, RESET, SOURCE_NAME, STEP, ascii_text, c_array, c_float, clamp, wrap
 
 UNROLL = 4
 """Inputs per pass over the accumulators in the matrix-vector loops (see `_matvec`)."""

@@ -16,7 +16,7 @@ import unicodedata
 
 import numpy as np
 
-GENERATOR = "quadpilot.runtime.cgen/1"
+GENERATOR = "quadpilot.ccode.generate/1"
 """Identifies the generated code's conventions; part of the runtime's compile-cache key."""
 HEADER_NAME, SOURCE_NAME = "policy.h", "policy.c"
 ENTRY, STEP, RESET = "quadpilot_policy", "quadpilot_policy_step", "quadpilot_policy_reset"

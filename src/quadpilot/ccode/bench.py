@@ -9,9 +9,10 @@ that work would take on a Cortex-M4F (`cortex_m4_estimate`, from `CORTEX_M4_CYCL
 
 from __future__ import annotations
 
-from .contract import NUM_MOTORS, ModelInfo
-from .ctext import ENTRY, GENERATOR, HEADER_NAME, RESET, STEP, c_float
-from .network import Network
+from quadpilot.modelfile.contract import NUM_MOTORS, ModelInfo
+from quadpilot.modelfile.network import Network
+
+from .text import ENTRY, GENERATOR, HEADER_NAME, RESET, STEP, c_float
 
 
 def bench_source(info: ModelInfo, iterations: int = 2_000, repeats: int = 101) -> str:

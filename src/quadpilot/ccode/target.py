@@ -39,9 +39,10 @@ from quadpilot.core.observation import build_observation
 from quadpilot.core.params import ParamBatch
 from quadpilot.core.start import sample_start_states
 from quadpilot.core.state import POS, ROLL_PITCH
+from quadpilot.modelfile.contract import NUM_MOTORS, ModelInfo
 
-from . import cgen, charness
-from .contract import NUM_MOTORS, ModelInfo
+from . import generate as cgen
+from . import harness as charness
 
 APT_INSTALL = "apt-get install -y gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm"
 CC, QEMU = "arm-none-eabi-gcc", "qemu-system-arm"

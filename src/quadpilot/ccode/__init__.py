@@ -1,0 +1,3 @@
+"""The C generator: a policy's network as dependency-free C99 (`generate`, with its text helpers
+`text` and the operation count `bench`), and the bare-metal Cortex-M harness and QEMU runner
+(`harness`, `target`). quad-export writes its C with it; the runtime's C backend compiles it."""
