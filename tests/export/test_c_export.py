@@ -33,7 +33,8 @@ from quadpilot.modelfile.model import read_model
 from quadpilot.runtime.cbackend import find_compiler
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.runs.checkpoint import load_checkpoint, load_policy, save_untrained_policy
+from quadpilot.train.runs.checkpoint import load_policy, save_untrained_policy
+from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
 MODELS = Path(__file__).parents[2] / "models"
 COMPILER = find_compiler()

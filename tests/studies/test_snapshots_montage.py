@@ -16,11 +16,11 @@ from quadpilot.train.ppo import PPOConfig
 from quadpilot.train.runs.checkpoint import (
     SNAPSHOTS,
     list_snapshots,
-    load_checkpoint,
     load_policy,
     save_untrained_policy,
     snapshot_path,
 )
+from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
 BATCH = 64 * 16  # transitions per update with TINY
 TINY = ["--num-envs", "64", "--rollout-steps", "16", "--threads", "1", "--eval-episodes", "0", "--eval-every", "0"]

@@ -14,14 +14,13 @@ from quadpilot.train.ppo import PPO, PPOConfig
 from quadpilot.train.runs.checkpoint import (
     LATEST,
     PREVIOUS,
-    SCHEMA,
-    CheckpointError,
-    load_checkpoint,
     load_for_resume,
     ppo_from_checkpoint,
     save_checkpoint,
     save_for_resume,
 )
+from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.runs.checks import SCHEMA, CheckpointError
 
 TINY = PPOConfig(num_envs=16, rollout_steps=16, minibatch_size=64, epochs=2, threads=1, seed=7)
 

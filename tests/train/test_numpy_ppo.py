@@ -16,7 +16,8 @@ import torch
 from quadpilot.train.cli import main
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
-from quadpilot.train.runs.checkpoint import LATEST, load_checkpoint
+from quadpilot.train.runs.checkpoint import LATEST
+from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
 TOL = 1e-5
 # per seed: network widths and observation history, so the check covers more than the default shape

@@ -126,7 +126,7 @@ def test_resumed_training_continues_bit_for_bit(tmp_path, kw):
     for _ in range(2):
         straight.iterate()
     save_checkpoint(tmp_path / "c.pt", straight)
-    from quadpilot.train.runs.checkpoint import load_checkpoint
+    from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
     resumed = ppo_from_checkpoint(load_checkpoint(tmp_path / "c.pt"))
     for _ in range(2):

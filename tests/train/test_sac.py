@@ -19,7 +19,8 @@ from quadpilot.modelfile.model import read_model
 from quadpilot.runtime.backends import load_policy as load_runtime_policy
 from quadpilot.train.cli import main
 from quadpilot.train.envs import make_config
-from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS, load_checkpoint, load_policy
+from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS, load_policy
+from quadpilot.train.runs.checkpoint_read import load_checkpoint
 from quadpilot.train.sac import (
     HEADER,
     REPLAY_DIR,

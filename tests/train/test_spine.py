@@ -21,7 +21,8 @@ import torch
 
 from quadpilot.train.cli import main
 from quadpilot.train.ppo import PPO
-from quadpilot.train.runs.checkpoint import LATEST, load_checkpoint, load_policy, load_trainer, snapshot_path
+from quadpilot.train.runs.checkpoint import LATEST, load_policy, load_trainer, snapshot_path
+from quadpilot.train.runs.checkpoint_read import load_checkpoint
 from quadpilot.train.sac import SAC
 
 DATA = Path(__file__).parent / "data" / "pre_spine"

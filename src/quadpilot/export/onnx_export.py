@@ -34,7 +34,8 @@ from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
 from quadpilot.core.state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
 from quadpilot.train.envs import QuadBatch
-from quadpilot.train.runs.checkpoint import CheckpointError, TrainedPolicy, load_checkpoint
+from quadpilot.train.runs.checkpoint import CheckpointError, TrainedPolicy
+from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
 ONNX_SCHEMA = "quadpilot.onnx/1"
 INPUT, OUTPUT = "obs", "action"

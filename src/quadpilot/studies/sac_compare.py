@@ -27,7 +27,7 @@ def _read(run: Path) -> dict:
     ev = json.loads((run / "eval.json").read_text())
     cfg = json.loads((run / "config.json").read_text())
     algo = cfg.get("algo", "ppo")
-    from quadpilot.train.runs.checkpoint import ALGORITHMS
+    from quadpilot.train.algorithms import ALGORITHMS
     from quadpilot.train.runs.runlog import read_metrics
 
     m = read_metrics(run / "metrics.csv", ALGORITHMS[algo].columns)

@@ -31,8 +31,8 @@ import torch
 from quadpilot.console import UsageError
 
 from .. import options
+from ..algorithms import ALGORITHMS
 from .checkpoint import (
-    ALGORITHMS,
     POLICY,
     has_checkpoint,
     load_for_resume,
