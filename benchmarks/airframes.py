@@ -42,6 +42,7 @@ AIRFRAMES = {
 OURS = {
     "px4_sih_quadx": ROOT / "models/hover_px4_sih/policy.onnx",
     "rotorpy_hummingbird": ROOT / "models/hover_hummingbird/policy.onnx",
+    "crazyflie": ROOT / "models/hover_crazyflie/policy.onnx",
 }
 """The policy trained here for an airframe (its command is in its folder's config.json)."""
 FLIGHTS = {

@@ -59,7 +59,8 @@ def test_circle_policy_follows_the_circle():
 
 
 @pytest.mark.parametrize(
-    ("folder", "vehicle"), [("hover_px4_sih", "px4_sih_quadx"), ("hover_hummingbird", "rotorpy_hummingbird")]
+    ("folder", "vehicle"),
+    [("hover_px4_sih", "px4_sih_quadx"), ("hover_hummingbird", "rotorpy_hummingbird"), ("hover_crazyflie", "crazyflie")],
 )
 def test_airframe_policies_hold_the_target_on_their_own_vehicle(folder, vehicle):
     policy, stored = shipped(folder)
@@ -72,7 +73,8 @@ def test_airframe_policies_hold_the_target_on_their_own_vehicle(folder, vehicle)
 
 
 @pytest.mark.parametrize(
-    "folder", ["hover", "waypoint", "circle", "hover_dr", "hover_lstm", "hover_px4_sih", "hover_hummingbird"]
+    "folder",
+    ["hover", "waypoint", "circle", "hover_dr", "hover_lstm", "hover_px4_sih", "hover_hummingbird", "hover_crazyflie"],
 )
 def test_each_shipped_model_holds_its_heading_under_the_yaw_rule(folder):
     """Every shipped model was trained and judged with the heading held: its observation is the
@@ -86,7 +88,9 @@ def test_each_shipped_model_holds_its_heading_under_the_yaw_rule(folder):
     assert stored["max_mean_heading_error_last_window_deg"] <= HEADING_TOLERANCE_DEG
 
 
-@pytest.mark.parametrize("folder", ["hover", "waypoint", "circle", "hover_dr", "hover_px4_sih", "hover_hummingbird"])
+@pytest.mark.parametrize(
+    "folder", ["hover", "waypoint", "circle", "hover_dr", "hover_px4_sih", "hover_hummingbird", "hover_crazyflie"]
+)
 def test_each_model_folder_says_how_it_was_made(folder):
     config = json.loads((MODELS / folder / "config.json").read_text())
     assert config["command"].startswith(f"quad-train --task {config['task']}")
