@@ -15,10 +15,12 @@ import json
 import sys
 from pathlib import Path
 
+TARGET_C_P50_US = 5.0  # the C step's goal, a ctypes call from Python included
 TARGET_P50_US = 30.0
 LABEL = {
     "gru_numpy": "NumPy GRU step (`runtime.gru.GruStep`)",
     "gru_onnxruntime": "ONNX graph in ONNX Runtime (`OnnxGruStep`)",
+    "gru_c": "generated C through ctypes (`runtime.cgru.CGruStep`)",
     "executor_numpy": "NumPy step in mc_raptor's executor (`RaptorPolicy.act`)",
     "node_step_numpy": "the node's per-step work: contract observation + safety monitor + executor",
     "package": "RAPTOR's own package, `foundation_policy` `evaluate_step` (baseline)",
@@ -56,6 +58,10 @@ def main(argv: list[str] | None = None) -> int:
     p50 = res["gru_numpy"]["p50_us"]
     verdict = "met" if p50 <= TARGET_P50_US else "NOT met"
     print(f"\nTarget NumPy GRU step p50 ≤ {TARGET_P50_US:g} µs: {p50:.1f} µs, {verdict}.")
+    if "gru_c" in res:
+        c = res["gru_c"]["p50_us"]
+        c_verdict = "met" if c <= TARGET_C_P50_US else "NOT met"
+        print(f"Target C GRU step p50 ≤ {TARGET_C_P50_US:g} µs: {c:.1f} µs, {c_verdict}.")
     return 0
 
 

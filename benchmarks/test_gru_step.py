@@ -3,6 +3,7 @@ runtime, against RAPTOR's own package (`foundation_policy`, NumPy) measured in t
 
     gru_numpy          runtime.gru.GruStep: one step, hidden state in and out
     gru_onnxruntime    runtime.gru.OnnxGruStep: the ONNX graph in ONNX Runtime (session.run)
+    gru_c              runtime.cgru.CGruStep: the generated C (ccode.gru), called through ctypes
     executor_numpy     RaptorPolicy.act: mc_raptor's executor (state kept or advanced, previous
                        action, clamp, remap, (a + 1)/2) around the NumPy step
     node_step_numpy    what the node runs per simulator step: the contract's observation from the
@@ -31,15 +32,17 @@ from quadpilot.runtime.raptor import FOUNDATION, foundation_checkpoint, load_rap
 
 ROUNDS = 20_000
 WARMUP = 500
-CASES = ("gru_numpy", "gru_onnxruntime", "executor_numpy", "node_step_numpy", "package")
+CASES = ("gru_numpy", "gru_onnxruntime", "gru_c", "executor_numpy", "node_step_numpy", "package")
 OBS = np.r_[0.1, -0.2, 0.05, np.eye(3).ravel(), 0.1, 0.0, -0.1, 0.01, 0.02, -0.03, np.zeros(4)].astype(np.float32)
 STATE = [0.1, -0.2, 2.05, 0.1, 0.0, -0.1, 0.02, -0.01, 0.3, 0.01, 0.02, -0.03]
 
 
 def _callable(case: str):
     weights, _ = weights_from_h5(foundation_checkpoint())
-    if case in ("gru_numpy", "gru_onnxruntime"):
-        step = GruStep(weights) if case == "gru_numpy" else OnnxGruStep(weights)
+    if case in ("gru_numpy", "gru_onnxruntime", "gru_c"):
+        from quadpilot.runtime.cgru import CGruStep
+
+        step = {"gru_numpy": GruStep, "gru_onnxruntime": OnnxGruStep, "gru_c": CGruStep}[case](weights)
         h = step.initial_state.copy()
         return lambda: step(OBS, h)[0]
     if case == "package":

@@ -60,7 +60,11 @@ def test_circle_policy_follows_the_circle():
 
 @pytest.mark.parametrize(
     ("folder", "vehicle"),
-    [("hover_px4_sih", "px4_sih_quadx"), ("hover_hummingbird", "rotorpy_hummingbird"), ("hover_crazyflie", "crazyflie")],
+    [
+        ("hover_px4_sih", "px4_sih_quadx"),
+        ("hover_hummingbird", "rotorpy_hummingbird"),
+        ("hover_crazyflie", "crazyflie"),
+    ],
 )
 def test_airframe_policies_hold_the_target_on_their_own_vehicle(folder, vehicle):
     policy, stored = shipped(folder)

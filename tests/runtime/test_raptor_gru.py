@@ -89,9 +89,11 @@ def test_load_policy_knows_the_foundation_policy_and_its_checkpoint_file(backend
         assert motors.shape == (4,) and ((0 <= motors) & (motors <= 1)).all()
 
 
-def test_the_c_backend_and_unknown_names_are_refused_in_one_line():
-    with pytest.raises(ValueError, match="numpy or onnxruntime backend"):
-        load_policy(FOUNDATION, "c")
+def test_unknown_backends_and_names_are_refused_in_one_line():
+    from quadpilot.runtime.raptor import load_raptor
+
+    with pytest.raises(ValueError, match="numpy, onnxruntime, c backend"):
+        load_raptor(FOUNDATION, "torch")
     with pytest.raises(ModelContractError, match="unknown RAPTOR policy name"):
         load_policy("raptor:nonesuch", "numpy")
 
@@ -223,3 +225,39 @@ def test_a_plain_weight_dict_from_any_reader_makes_the_same_policy(checkpoint):
     for t in range(5):
         obs = example["input"][t, 1]
         np.testing.assert_array_equal(policy.act(obs), reference.act(obs))
+
+
+# --- the generated C (ccode.gru, runtime.cgru) ----------------------------------------------
+
+
+def _c_step_or_skip(weights):
+    import os
+
+    from quadpilot.runtime.cbackend import CCompilerError
+    from quadpilot.runtime.cgru import CGruStep
+
+    try:
+        return CGruStep(weights)
+    except CCompilerError as e:
+        if os.environ.get("CI"):
+            pytest.fail(f"{e} (CI installs gcc)")
+        pytest.skip(f"{e}")
+
+
+def test_the_c_step_gives_the_numpy_steps_actions_and_states():
+    import numpy as np
+
+    from quadpilot.runtime.gru import GruStep, sequences, weights_from_h5
+    from quadpilot.runtime.raptor import foundation_checkpoint
+
+    weights, example = weights_from_h5(foundation_checkpoint())
+    c, n = _c_step_or_skip(weights), GruStep(weights)
+    xs = example["input"]
+    assert np.max(np.abs(sequences(c, xs) - sequences(n, xs))) <= 1e-5
+    assert np.max(np.abs(sequences(c, xs) - example["output"])) <= 1e-5
+    rng = np.random.default_rng(5)  # and off the example: wide inputs, a state carried 200 steps
+    h_c = h_n = c.initial_state.copy()
+    for _ in range(200):
+        x = rng.uniform(-3, 3, 22).astype(np.float32)
+        (a_c, h_c), (a_n, h_n) = c(x, h_c), n(x, h_n)
+        assert np.max(np.abs(a_c - a_n)) <= 1e-5 and np.max(np.abs(h_c - h_n)) <= 1e-5

@@ -101,6 +101,27 @@ def test_a_bad_name_or_backend_is_one_line(capsys):
     assert main(["raptor:nonesuch", "--episodes", "1", "--gcs", "none"]) == 1
     err = capsys.readouterr().err
     assert "unknown RAPTOR policy name" in err and len(err.strip().splitlines()) == 1
-    assert main(["raptor:foundation", "--backend", "c", "--episodes", "1", "--gcs", "none"]) == 2
-    err = capsys.readouterr().err
-    assert "numpy or onnxruntime backend" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_c_backend_flies_it_like_numpy(tmp_path):
+    out = tmp_path / "c.json"
+    assert (
+        main(
+            [
+                "raptor:foundation",
+                "--backend",
+                "c",
+                "--episodes",
+                "2",
+                "--duration",
+                "4",
+                "--gcs",
+                "none",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    s = json.loads(out.read_text())
+    assert s["success_rate"] == 1.0 and s["mean_error_last_2s_m"] <= HOVER_BAR_M and s["fallback_steps"] == 0

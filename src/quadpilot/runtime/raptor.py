@@ -37,7 +37,7 @@ from .policy import Policy
 
 FOUNDATION = "raptor:foundation"
 """The policy name that selects the foundation-policy package's checkpoint."""
-RAPTOR_BACKENDS = ("numpy", "onnxruntime")
+RAPTOR_BACKENDS = ("numpy", "onnxruntime", "c")
 DEFAULT_VEHICLE = "px4_sih_quadx"
 """The vehicle quad-sitl flies RAPTOR on unless --vehicle says otherwise (PX4 flies it in SIH)."""
 GOLDEN_STEPS = 20
@@ -67,7 +67,7 @@ def load_raptor(path, backend: str = "numpy", vehicle=None) -> RaptorPolicy:
     policy.tar (the file mc_raptor loads: `rltools_tar.read_policy_tar` checks it whole; see the module
     docstring); ModelContractError, one line, if not."""
     if backend not in RAPTOR_BACKENDS:
-        raise ValueError(f"a RAPTOR policy runs on the {' or '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
+        raise ValueError(f"a RAPTOR policy runs on the {', '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
     if str(path).startswith("raptor:") and str(path) != FOUNDATION:
         raise ModelContractError(f"{path}: unknown RAPTOR policy name; expected {FOUNDATION}")
     file = foundation_checkpoint() if str(path) == FOUNDATION else Path(path)
@@ -101,8 +101,13 @@ def raptor_from_weights(
     {"input": (T, B, 22), "output": (T, B, 4)}, whatever read them (an RLtools policy.tar reader
     can feed this); `name` labels it, `sha256` is its source's digest."""
     if backend not in RAPTOR_BACKENDS:
-        raise ValueError(f"a RAPTOR policy runs on the {' or '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
-    step = GruStep(weights) if backend == "numpy" else OnnxGruStep(weights)
+        raise ValueError(f"a RAPTOR policy runs on the {', '.join(RAPTOR_BACKENDS)} backend, not {backend!r}")
+    if backend == "c":  # generated C (ccode.gru), compiled by the system C compiler: CCompilerError without one
+        from .cgru import CGruStep
+
+        step = CGruStep(weights)
+    else:
+        step = GruStep(weights) if backend == "numpy" else OnnxGruStep(weights)
     diff = check_example(step, example)
     if math.isnan(diff):
         raise ModelContractError(f"{name}: no input/output example to replay (mc_raptor's test_policy needs one)")

@@ -32,39 +32,28 @@ import torch
 from quadpilot.console import atomic_write
 
 from ..algorithms import ALGORITHMS
+from ..envs import EnvConfig
+from ..policy_actor import DeterministicActor
+from ..ppo import PPO, PPOConfig
 from .checkpoint_read import load_checkpoint
 from .checks import (
     MAX_BATCH,
     MAX_ENVS,
-    MAX_FILE_BYTES,
     MAX_OBS_HISTORY,
     MAX_THREADS,
     SCHEMA,
     CheckpointError,
-    build_config,
-    check_count,
-    check_extra,
-    check_obs_rms,
-    check_sizes,
-    check_trainer,
-    check_weights,
-    load_weights_only,
     one_line,
     plain,
     rms_state,
     short,
 )
-from ..envs import EnvConfig
-from ..policy_actor import DeterministicActor
-from ..ppo import PPO, PPOConfig
-from ..sac import SAC
 from .trainer import LATEST, PREVIOUS, Trainer
 
 __all__ = ["MAX_BATCH", "MAX_ENVS", "MAX_OBS_HISTORY", "MAX_THREADS", "CheckpointError"]
 
 POLICY = "policy.pt"
 SNAPSHOTS = "snapshots"
-
 
 
 # --- trainers to and from checkpoints ---------------------------------------------------------

@@ -24,7 +24,6 @@ from .checks import (
     short,
 )
 
-
 REQUIRED = (
     *("schema", "env_config", "obs_layout", "model", "optimizer", "obs_rms", "global_step", "updates"),
     *("trainer", "env", "rng", "extra"),

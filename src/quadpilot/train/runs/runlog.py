@@ -1,6 +1,7 @@
 """The files of a training run other than checkpoints: metrics.csv, JSON files, the run
-directory's lock (curves.png, drawn from metrics.csv, is `train.plotting`'s). Every file of a run (checkpoints, replay chunks and snapshots too) is written
-whole or not at all by `console.atomic_write`.
+directory's lock (curves.png, drawn from metrics.csv, is `train.plotting`'s). Every file of a run
+(checkpoints, replay chunks and snapshots too) is written whole or not at all by
+`console.atomic_write`.
 
 metrics.csv has a fixed header (`COLUMNS` for PPO; an algorithm names its own, `sac.COLUMNS`) and
 one row per iteration (a PPO update), appended, flushed and fsync'd as soon as the iteration ends, so

@@ -42,6 +42,7 @@ import torch
 from quadpilot.console import atomic_write
 from quadpilot.core.state import YAW
 
+from ..envs import EnvConfig
 from .checks import (
     BIT_GENERATORS,
     HEADING_ARRAYS,
@@ -52,7 +53,6 @@ from .checks import (
     plain,
     tensor,
 )
-from ..envs import EnvConfig
 
 LATEST = "checkpoint.pt"
 PREVIOUS = "checkpoint.prev.pt"
