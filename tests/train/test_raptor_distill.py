@@ -124,6 +124,12 @@ def test_the_checkpoint_loads_with_weights_only_and_other_files_are_refused(tmp_
         np.testing.assert_array_equal(back.weights()[k], v)
     assert is_student_checkpoint(tmp_path / "p.pt") and not is_student_checkpoint("models/hover/policy.pt")
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    for name, env in (("noenv.pt", {"task": "hover"}), ("strenv.pt", "x")):
+        torch.save(
+            {**checkpoint(student, teacher.env_config, DistillConfig(), "t", {}), "env_config": env}, tmp_path / name
+        )
+        with pytest.raises(ValueError, match=name):
+            load_student(tmp_path / name)
     for path, says in (
         (tmp_path / "junk.pt", "not a readable checkpoint"),
         ("models/hover/policy.pt", "not a px4-raptor policy"),

@@ -217,9 +217,14 @@ def load_student(path) -> tuple[RaptorStudent, dict]:
         raise StudentCheckpointError(f"{path}: not a px4-raptor policy (expected schema {SCHEMA!r})")
     try:
         weights = {k: v.numpy() for k, v in ckpt["weights"].items()}
-        return RaptorStudent.from_weights(weights), ckpt
+        student = RaptorStudent.from_weights(weights)
+        EnvConfig.from_json(ckpt["env_config"])  # the environment it came from: export flies it
+        return student, ckpt
     except (AttributeError, KeyError, TypeError, ValueError) as e:
-        raise StudentCheckpointError(f"{path}: {str(e).splitlines()[0][:200]}") from None
+        what = f"missing entry {e}" if isinstance(e, KeyError) else str(e).splitlines()[0][:200]
+        raise StudentCheckpointError(
+            f"{path}: damaged px4-raptor policy ({what}); expected the file quad-train --contract px4-raptor writes"
+        ) from None
 
 
 def is_student_checkpoint(path) -> bool:
