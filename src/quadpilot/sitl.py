@@ -43,6 +43,7 @@ import numpy as np
 import quadpilot.sitl_node as sitl_node
 from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, input_path_problem, os_error_line
 from quadpilot.console import int_in as _int_in
+from quadpilot.firmware_sim.cli import add_passed_on_flags, passed_on_tokens
 
 # The shipped models are package data (`runtime.shipped`): in a source checkout this is models/.
 SHIPPED_HOVER = (Path(__file__).parent / "models").resolve() / "hover" / "policy.onnx"
@@ -56,26 +57,6 @@ def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-SIM_FLAGS = {
-    "--mass-scale": "X",
-    "--inertia-scale": "X",
-    "--motor-scale": "X",
-    "--motor-tau": "S",
-    "--wind": "E,N,U",
-    "--gust": "M/S",
-    "--init-pos-radius": "M",
-    "--init-vel": "M/S",
-    "--init-tilt": "DEG",
-    "--drag": "D",
-    "--imu-noise": None,
-    "--estimator-noise": None,
-    "--vehicle": "NAME|FILE.toml",
-    "--start": "air|landed",
-    "--sensor-fault": "KIND@T",
-    "--rate": "HZ",
-}
 
 
 def _seconds(text: str) -> float:
@@ -188,23 +169,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sitl_node.add_arguments(p)
     sim = p.add_argument_group("simulator (passed on to the simulator process; see quad-sitl --sim-only --help)")
-    for flag, metavar in SIM_FLAGS.items():
-        if metavar is None:
-            sim.add_argument(flag, action="store_true")
-        else:
-            sim.add_argument(flag, metavar=metavar)
+    add_passed_on_flags(sim, passed_on=True)  # declared once, in the simulator's command line
     return p
 
 
 def _sim_args(args: argparse.Namespace) -> list[str]:
-    out = []
-    for flag, metavar in SIM_FLAGS.items():
-        value = getattr(args, flag[2:].replace("-", "_"))
-        if metavar is None and value:
-            out.append(flag)
-        elif metavar is not None and value is not None:
-            out.append(f"{flag}={value}")  # one token: a value like -0.9,0,0 is not taken for an option
-    return out
+    return passed_on_tokens(args)
 
 
 def _die_with_parent():

@@ -115,6 +115,120 @@ def _faults(text: str):
         raise argparse.ArgumentTypeError(str(e).removeprefix("--sensor-fault ")) from None
 
 
+def _flag(table: dict, flag: str, **kw) -> None:
+    table[flag] = kw
+
+
+def passed_on_flags() -> dict[str, dict]:
+    """The simulator's flags that quad-sitl also takes and passes on to the simulator process,
+    declared here once: flag → `add_argument` keywords (the plant, the start, the rate, the faults)."""
+    d = SimConfig()
+    table: dict[str, dict] = {}
+    _flag(
+        table,
+        "--vehicle",
+        default=d.vehicle,
+        metavar="NAME|FILE.toml",
+        help="airframe: a shipped vehicle or a vehicle file (core.vehicle_file); default: the policy's own under "
+        f"quad-sitl, {d.vehicle} for the simulator alone",
+    )
+    _flag(
+        table,
+        "--start",
+        choices=START_MODES,
+        default=d.start,
+        metavar="air|landed",
+        help="air: in flight, rotors at hover speed (default); landed: at rest on the ground at home, rotors at rest",
+    )
+    _flag(table, "--mass-scale", type=_positive, metavar="X", default=d.mass_scale, help="multiplies the mass")
+    _flag(
+        table, "--inertia-scale", type=_positive, metavar="X", default=d.inertia_scale, help="multiplies the inertias"
+    )
+    _flag(
+        table,
+        "--motor-scale",
+        type=_positive,
+        metavar="X",
+        default=d.motor_scale,
+        help="multiplies the thrust coefficient k_f",
+    )
+    _flag(table, "--motor-tau", type=_non_negative, default=None, metavar="S", help="motor time constant, s")
+    _flag(table, "--wind", type=_wind, default=d.wind, metavar="E,N,U", help="constant wind, m/s world ENU")
+    _flag(table, "--gust", type=_non_negative, default=d.gust, metavar="M/S", help="gust std per axis, m/s")
+    _flag(
+        table, "--init-pos-radius", type=_non_negative, default=d.init_pos_radius, metavar="M", help="start ball radius"
+    )
+    _flag(table, "--init-vel", type=_non_negative, default=d.init_vel, metavar="M/S", help="start velocity range ±")
+    _flag(table, "--init-tilt", type=_non_negative, default=d.init_tilt_deg, metavar="DEG", help="start roll/pitch ±")
+    _flag(
+        table,
+        "--drag",
+        type=float,
+        default=None,
+        metavar="D",
+        help=f"N·s/m linear drag (default: preset's, or {DEFAULT_WIND_DRAG} with wind)",
+    )
+    _flag(
+        table,
+        "--imu-noise",
+        action="store_true",
+        help="IMU noise (core.sensor_noise, the vehicle's IMU): white noise, turn-on bias and bias random walk",
+    )
+    _flag(
+        table,
+        "--estimator-noise",
+        action="store_true",
+        help="send ODOMETRY, the state as an EKF would output it (cm-level errors, core.sensor_noise); the "
+        "node flies on it, and is judged on the exact HIL_STATE_QUATERNION",
+    )
+    _flag(
+        table,
+        "--rate",
+        type=_positive,
+        default=1.0 / d.dt,
+        metavar="HZ",
+        help=f"simulation steps per second (default {1 / d.dt:g})",
+    )
+    _flag(
+        table,
+        "--sensor-fault",
+        type=_faults,
+        default=(),
+        metavar="KIND@T",
+        help="inject sensor faults at a simulated time of every episode, e.g. gyro-spike@2s, pos-freeze@2s+0.5s, "
+        "baro-step@1s:5, nan@3s:gyro (kinds: " + ", ".join(KINDS) + "; see firmware_sim.faults)",
+    )
+    return table
+
+
+def add_passed_on_flags(p, passed_on: bool = False) -> None:
+    """Add `passed_on_flags` to a parser (or group). passed_on: quad-sitl's copy, with the same help
+    and metavar but no default and no type, so that only the flags given are passed on, as given
+    (quad-sitl checks them first with the simulator's own parser)."""
+    for flag, kw in passed_on_flags().items():
+        kw = dict(kw)
+        if passed_on and kw.get("action") != "store_true":
+            for k in ("type", "choices"):
+                kw.pop(k, None)
+            kw["default"] = None
+        p.add_argument(flag, **kw)
+
+
+def passed_on_tokens(args) -> list[str]:
+    """The passed-on flags given in `args` (a namespace of a parser with `add_passed_on_flags(...,
+    passed_on=True)`), as simulator arguments: FLAG=VALUE in one token (a value like -0.9,0,0 is not
+    taken for an option), a switch alone."""
+    out = []
+    for flag, kw in passed_on_flags().items():
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if kw.get("action") == "store_true":
+            if value:
+                out.append(flag)
+        elif value is not None:
+            out.append(f"{flag}={value}")
+    return out
+
+
 def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentParser:
     d = SimConfig()
     p = Parser(prog=prog, description="Run only the simulator: core dynamics served over MAVLink like a PX4 simulator.")
@@ -127,56 +241,10 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         "--lockstep", dest="lockstep", action="store_true", default=True, help="one step per actuator message (default)"
     )
     mode.add_argument("--realtime", dest="lockstep", action="store_false", help="one step per dt of wall-clock time")
-    p.add_argument(
-        "--vehicle",
-        default=d.vehicle,
-        metavar="NAME|FILE.toml",
-        help=f"airframe: a shipped vehicle or a vehicle file (core.vehicle_file; default {d.vehicle})",
-    )
+    add_passed_on_flags(p)
     p.add_argument("--task", choices=TASKS, default=d.task, help="where episodes start (core.mission; default hover)")
-    p.add_argument(
-        "--start",
-        choices=START_MODES,
-        default=d.start,
-        help="air: in flight, rotors at hover speed (default); landed: at rest on the ground at home, rotors at rest",
-    )
-    p.add_argument("--mass-scale", type=_positive, default=d.mass_scale, help="multiplies the mass")
-    p.add_argument("--inertia-scale", type=_positive, default=d.inertia_scale, help="multiplies the inertias")
-    p.add_argument("--motor-scale", type=_positive, default=d.motor_scale, help="multiplies the thrust coefficient k_f")
-    p.add_argument("--motor-tau", type=_non_negative, default=None, metavar="S", help="motor time constant, s")
-    p.add_argument("--wind", type=_wind, default=d.wind, metavar="E,N,U", help="constant wind, m/s world ENU")
-    p.add_argument("--gust", type=_non_negative, default=d.gust, metavar="M/S", help="gust std per axis, m/s")
     p.add_argument("--gust-tau", type=_positive, default=d.gust_tau_s, metavar="S", help="gust correlation time, s")
-    p.add_argument(
-        "--init-pos-radius", type=_non_negative, default=d.init_pos_radius, metavar="M", help="start ball radius"
-    )
-    p.add_argument("--init-vel", type=_non_negative, default=d.init_vel, metavar="M/S", help="start velocity range ±")
-    p.add_argument("--init-tilt", type=_non_negative, default=d.init_tilt_deg, metavar="DEG", help="start roll/pitch ±")
     p.add_argument("--init-rate", type=_non_negative, default=d.init_rate, metavar="RAD/S", help="start body rates ±")
-    p.add_argument(
-        "--drag",
-        type=float,
-        default=None,
-        help=f"N·s/m linear drag (default: preset's, or {DEFAULT_WIND_DRAG} with wind)",
-    )
-    p.add_argument(
-        "--imu-noise",
-        action="store_true",
-        help="IMU noise (core.sensor_noise, the vehicle's IMU): white noise, turn-on bias and bias random walk",
-    )
-    p.add_argument(
-        "--estimator-noise",
-        action="store_true",
-        help="send ODOMETRY, the state as an EKF would output it (cm-level errors, core.sensor_noise); the "
-        "node flies on it, and is judged on the exact HIL_STATE_QUATERNION",
-    )
-    p.add_argument(
-        "--rate",
-        type=_positive,
-        default=1.0 / d.dt,
-        metavar="HZ",
-        help=f"simulation steps per second (default {1 / d.dt:g})",
-    )
     p.add_argument("--seed", type=_int_at_least(0), default=d.seed, help="seed of the start states and the noise")
     p.add_argument("--episodes", type=_int_at_least(1), default=None, help="serve this many connections, then exit")
     p.add_argument("--gps-every", type=_int_at_least(1), default=d.gps_every, help="steps between HIL_GPS messages")
@@ -199,14 +267,6 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         default=d.spin_s * 1e6,
         metavar="US",
         help=f"µs to poll for the peer's answer before sleeping, in lockstep (default {d.spin_s * 1e6:g}; 0: off)",
-    )
-    p.add_argument(
-        "--sensor-fault",
-        type=_faults,
-        default=(),
-        metavar="KIND@T",
-        help="inject sensor faults at a simulated time of every episode, e.g. gyro-spike@2s, pos-freeze@2s+0.5s, "
-        "baro-step@1s:5, nan@3s:gyro (kinds: " + ", ".join(KINDS) + "; see firmware_sim.faults)",
     )
     p.add_argument("--json", metavar="OUT", default=None, help="write the stats and episode records as JSON on exit")
     p.add_argument(
