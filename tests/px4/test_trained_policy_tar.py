@@ -113,3 +113,44 @@ def test_shipped_policy_onnx_is_the_same_gru_as_its_policy_tar(name):
     xs = tar.example_in  # two flights of the policy, 500 steps each
     diff = np.max(np.abs(gru.sequences(shipped, xs) - gru.sequences(gru.GruStep(weights), xs)))
     assert diff <= 1e-5
+
+
+def test_a_refused_export_leaves_the_files_there_untouched(exported, tmp_path, capsys):
+    import shutil
+
+    import torch
+
+    out = tmp_path / "out"
+    shutil.copytree(exported, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    ckpt = torch.load(exported / "policy.pt", weights_only=True)
+    ckpt["env_config"]["vehicle"]["name"] = "../x\n\0" * 20  # no vehicle file can hold it
+    torch.save(ckpt, tmp_path / "bad.pt")
+    assert export(["--format", "px4-raptor", str(tmp_path / "bad.pt"), "-o", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot be exported" in err[0]
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_what_lies_beside_a_policy_tar_is_checked(exported, tmp_path, capsys):
+    import shutil
+
+    from quadpilot.sitl import main as sitl
+
+    d = tmp_path / "m"
+    shutil.copytree(exported, d)
+    (d / "vehicle.toml").write_text(
+        (d / "vehicle.toml")
+        .read_text()
+        .replace('spin = "ccw"', 'spin = "tmp"')
+        .replace('spin = "cw"', 'spin = "ccw"')
+        .replace('spin = "tmp"', 'spin = "cw"')
+    )  # every rotor's spin reversed: not PX4's quad-X
+    (d / "policy.tar.sha256").unlink()
+    (d / "policy.tar.sha256").mkdir()
+    assert sitl([str(d / "policy.tar"), "--episodes", "1", "--gcs", "none"]) == 1
+    assert "cannot read" in capsys.readouterr().err
+    (d / "policy.tar.sha256").rmdir()
+    assert sitl([str(d / "policy.tar"), "--episodes", "1", "--gcs", "none"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "its vehicle.toml" in err[0] and "spins" in err[0]

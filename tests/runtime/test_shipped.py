@@ -18,7 +18,7 @@ def test_every_folder_of_models_with_a_policy_is_shipped_and_hover_is_the_defaul
 
 
 def test_an_unknown_name_is_refused_naming_the_choices():
-    with pytest.raises(ValueError, match=r"'nope'.*expected one of circle, hover, hover_dr"):
+    with pytest.raises(ValueError, match=r"'nope'.*expected one of circle, hover, hover_crazyflie, hover_dr"):
         shipped_policy("nope")
 
 

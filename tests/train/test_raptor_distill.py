@@ -136,3 +136,17 @@ def test_the_checkpoint_loads_with_weights_only_and_other_files_are_refused(tmp_
     ):
         with pytest.raises(ValueError, match=says):
             load_student(path)
+
+
+def test_a_frame_the_contract_cannot_fly_is_refused_before_any_training(tmp_path, capsys):
+    import dataclasses
+
+    from quadpilot.core.vehicle_file import vehicle_to_toml
+
+    v = get_preset("px4_sih_quadx")
+    c = 0.17
+    plus = [Rotor(c, 0.0, "ccw"), Rotor(-c, 0.0, "ccw"), Rotor(0.0, c, "cw"), Rotor(0.0, -c, "cw")]
+    (tmp_path / "plus.toml").write_text(vehicle_to_toml(dataclasses.replace(v, name="plus", arm=None, rotors=plus)))
+    argv = ["--task", "hover", "--contract", "px4-raptor", "--vehicle", str(tmp_path / "plus.toml")]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == 2
+    assert "one rotor per corner" in capsys.readouterr().err and not (tmp_path / "r").exists()

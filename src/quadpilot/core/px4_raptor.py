@@ -45,6 +45,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .observation import ObsField, ObsLayout
+from .state import PITCH, POS, RATES, ROLL, VEL, YAW
 
 MAX_POSITION_ERROR_M = 0.5
 """mc_raptor.hpp `max_position_error`: each component of the position error is clipped to this."""
@@ -143,15 +144,15 @@ def observation_batch(state, target, heading, previous_action, out: np.ndarray |
     (N,), previous action (N, 4), the setpoint velocity 0 (hover); returns (N, 22) float32 (into
     `out` if given). Computed in float64, as `observation` computes, then rounded."""
     s = np.asarray(state, np.float64)
-    roll, pitch, yaw = s[:, 6], s[:, 7], s[:, 8]
+    roll, pitch, yaw = s[:, ROLL], s[:, PITCH], s[:, YAW]
     c, sn = np.cos(np.asarray(heading, np.float64)), np.sin(np.asarray(heading, np.float64))
     sr, cr, sp, cp, sy, cy = np.sin(roll), np.cos(roll), np.sin(pitch), np.cos(pitch), np.sin(yaw), np.cos(yaw)
     rot = np.empty((len(s), 3, 3))
     rot[:, 0] = np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], 1)
     rot[:, 1] = np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], 1)
     rot[:, 2] = np.stack([-sp, cp * sr, cp * cr], 1)
-    e = s[:, 0:3] - np.asarray(target, np.float64)
-    v = s[:, 3:6]
+    e = s[:, POS] - np.asarray(target, np.float64)
+    v = s[:, VEL]
     out = np.empty((len(s), OBS_DIM), np.float32) if out is None else out
     cc, ss = c[:, None], sn[:, None]
     out[:, 0] = c * e[:, 0] + sn * e[:, 1]
@@ -165,7 +166,7 @@ def observation_batch(state, target, heading, previous_action, out: np.ndarray |
     out[:, 14] = v[:, 2]
     np.clip(out[:, 0:3], -MAX_POSITION_ERROR_M, MAX_POSITION_ERROR_M, out=out[:, 0:3])
     np.clip(out[:, 12:15], -MAX_VELOCITY_ERROR_M_S, MAX_VELOCITY_ERROR_M_S, out=out[:, 12:15])
-    out[:, 15:18] = s[:, 9:12]
+    out[:, 15:18] = s[:, RATES]
     out[:, 18:22] = previous_action
     return out
 

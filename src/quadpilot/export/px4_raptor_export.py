@@ -21,17 +21,19 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from quadpilot.console import atomic_write
+from quadpilot.core import px4_raptor
 from quadpilot.core.vehicle_file import vehicle_to_toml
 from quadpilot.runtime import gru, rltools_tar
 from quadpilot.runtime.raptor import VEHICLE_BESIDE
 from quadpilot.train.envs import EnvConfig
-from quadpilot.train.raptor_distill import fly, load_student, numpy_policy
+from quadpilot.train.raptor_distill import StudentCheckpointError, fly, load_student, numpy_policy
 
 EXAMPLE_SEED = 2025
 """Seed of the two flights the example is taken from."""
@@ -65,13 +67,20 @@ def export_px4_raptor(checkpoint: Path, out_dir: Path) -> Exported:
     """Write policy.tar, its SHA-256 and policy.onnx into out_dir (see the module docstring)."""
     student, ckpt = load_student(checkpoint)
     weights = student.weights()
-    cfg = EnvConfig.from_json(ckpt["env_config"])
-    ex_in, ex_out = example(weights, cfg)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    name = checkpoint_name(ckpt)
-    tar = out_dir / "policy.tar"
-    digest = rltools_tar.write_policy_tar(tar, weights, ex_in, ex_out, checkpoint_name=name)
-    onnx_path = out_dir / "policy.onnx"
+    # everything is made and checked before anything is written: a refused checkpoint leaves the
+    # files already in out_dir as they were
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # overflow in a damaged network: judged by the checks below
+            cfg = EnvConfig.from_json(ckpt["env_config"])
+            px4_raptor.policy_order(cfg.params)
+            toml = vehicle_to_toml(cfg.params).encode()
+            ex_in, ex_out = example(weights, cfg)
+            name = checkpoint_name(ckpt)
+            data = rltools_tar.policy_tar_bytes(weights, ex_in, ex_out, checkpoint_name=name)
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
+        what = f"missing entry {e}" if isinstance(e, KeyError) else str(e).splitlines()[0][:200]
+        raise StudentCheckpointError(f"{checkpoint}: cannot be exported ({what})") from None
     model = gru.gru_onnx(weights)
     meta = {
         "quadpilot.contract": "px4-raptor",
@@ -80,8 +89,12 @@ def export_px4_raptor(checkpoint: Path, out_dir: Path) -> Exported:
     }
     for k, v in meta.items():
         model.metadata_props.add(key=k, value=v)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tar = out_dir / "policy.tar"
+    digest = rltools_tar.write_policy_tar(tar, weights, ex_in, ex_out, checkpoint_name=name)
+    assert rltools_tar.sha256_hex(data) == digest
+    onnx_path = out_dir / "policy.onnx"
     atomic_write(onnx_path, lambda f: f.write(model.SerializeToString()))
-    toml = vehicle_to_toml(cfg.params).encode()
     atomic_write(out_dir / VEHICLE_BESIDE, lambda f: f.write(toml))
     return Exported(tar, digest, onnx_path, parity(student, weights, tar, ex_in), name)
 

@@ -81,12 +81,18 @@ def load_raptor(path, backend: str = "numpy", vehicle=None) -> RaptorPolicy:
         except PolicyTarError as e:
             raise ModelContractError(str(e)) from None
         example = {"input": tar.example_in, "output": tar.example_out}
-        if vehicle is None and (file.parent / VEHICLE_BESIDE).is_file():
-            from quadpilot.core.vehicle_file import VehicleFileError, load_vehicle_file
+        beside = file.parent / VEHICLE_BESIDE
+        if vehicle is None and (beside.exists() or beside.is_symlink()):
+            from quadpilot.core.vehicle_file import load_vehicle_file
 
+            if not beside.is_file():
+                raise ModelContractError(
+                    f"{path}: its {VEHICLE_BESIDE} is not a file; expected the vehicle file quad-export wrote"
+                )
             try:
-                vehicle = load_vehicle_file(file.parent / VEHICLE_BESIDE)
-            except VehicleFileError as e:
+                vehicle = load_vehicle_file(beside)
+                px4_raptor.policy_order(vehicle)
+            except ValueError as e:  # VehicleFileError, or a frame the contract cannot fly
                 raise ModelContractError(f"{path}: its {VEHICLE_BESIDE}: {e}") from None
         return raptor_from_weights(tar.weights, example, str(path), tar.sha256, backend, vehicle or DEFAULT_VEHICLE)
     weights, example = weights_from_h5(file)

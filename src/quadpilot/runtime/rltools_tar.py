@@ -330,7 +330,9 @@ def read_policy_tar(path: str | Path, expected_sha256: str | None = None) -> Pol
             data = f.read(MAX_FILE_BYTES + 1)
     except OSError as e:
         raise PolicyTarError(f"{p}: cannot read ({e.strerror})") from None
-    if expected_sha256 is None and sha256_path(p).is_file():
+    if expected_sha256 is None and (
+        sha256_path(p).exists() or sha256_path(p).is_symlink()
+    ):  # a directory there: refused
         expected_sha256 = _read_sha256_file(sha256_path(p))
     if expected_sha256 is not None and sha256_hex(data) != expected_sha256:
         found = sha256_hex(data)

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from quadpilot.modelfile.contract import ModelContractError
 from quadpilot.modelfile.model import read_model
 
 DEFAULT_MODEL = "hover"
@@ -91,7 +90,7 @@ def listing() -> list[str]:
     for name, model in models.items():
         try:
             what = model.describe()
-        except ModelContractError as e:  # a damaged installation: say so and go on listing
+        except ValueError as e:  # a damaged installation (ModelContractError among them): say so and go on
             what = f"unusable: {e}"
         lines.append(f"{name:<{width}}  {what}" + ("  (default)" if name == DEFAULT_MODEL else ""))
     return [*lines, "fly one with: quad-sitl --model NAME"]

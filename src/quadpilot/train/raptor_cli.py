@@ -15,6 +15,7 @@ from pathlib import Path
 
 from quadpilot.console import UsageError
 
+from .options import _vehicle
 from .raptor_distill import CONTRACT, DistillConfig, distill
 
 CONTRACTS = (CONTRACT,)
@@ -80,12 +81,17 @@ def distill_config(args, episode_steps: int, sizes: bool = True) -> DistillConfi
 
 
 def train_from_cli(args, argv: list[str]) -> int:
-    from .options import _vehicle
     from .runs.checkpoint import load_policy
     from .runs.loop import Progress, train
 
     check(args)
     start = time.perf_counter()
+    try:  # the frame first: a teacher trained for a frame the contract cannot fly is time lost
+        from quadpilot.core.px4_raptor import policy_order
+
+        policy_order(_vehicle(args))
+    except ValueError as e:
+        raise UsageError(f"--vehicle: {e}") from None
     import torch
 
     # one thread unless told: the GRU's small products gain nothing from more, and lose much to a busy CPU
