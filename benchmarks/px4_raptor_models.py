@@ -35,13 +35,6 @@ MODELS = {"hover_px4_raptor_sih": "sih", "hover_px4_raptor_hummingbird": "hummin
 TEACHER_STEPS = 1_000_000
 
 
-def _quad_sitl(args: list[str], tmp: Path) -> dict:
-    out = tmp / "s.json"
-    cmd = [sys.executable, "-m", "quadpilot.sitl", *args, "--gcs", "none", "--json", str(out)]
-    _run(cmd)
-    return json.loads(out.read_text())
-
-
 def _run(cmd: list[str]) -> None:
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
     if done.returncode != 0:
@@ -80,7 +73,7 @@ def run(out: Path) -> dict:
         tmp = Path(tmp)
         for name, airframe in MODELS.items():
             tar = str(ROOT / "models" / name / "policy.tar")
-            data["flights"][f"{name}_ours_100hz"] = _quad_sitl(["--model", name, "--episodes", "10"], tmp)
+            data["flights"][f"{name}_ours_100hz"] = rf.quad_sitl(["--model", name, "--episodes", "10"], tmp, policy=())
             for rate, mavlink in ((100, 1), (250, 2)):
                 with tempfile.TemporaryDirectory() as rp:
                     flight = rf.rotorpy(rate, mavlink, Path(rp), policy=tar, vehicle=airframe)

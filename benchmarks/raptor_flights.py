@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-QUAD_SITL = [sys.executable, "-m", "quadpilot.sitl", "raptor:foundation", "--gcs", "none"]
+QUAD_SITL = [sys.executable, "-m", "quadpilot.sitl", "--gcs", "none"]
 SIM_250 = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--rate", "250", "--episodes", "1"]
 LAG_S = 0.03
 
@@ -44,16 +44,18 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _quad_sitl(args: list[str], tmp: Path) -> dict:
+def quad_sitl(args: list[str], tmp: Path, policy: tuple[str, ...] = ("raptor:foundation",)) -> dict:
+    """One `quad-sitl` run of `policy` (its argument: a file, a name, or [] with --model) and its --json summary."""
     out = tmp / "s.json"
-    done = subprocess.run([*QUAD_SITL, *args, "--json", str(out)], capture_output=True, text=True, timeout=600)
+    cmd = [*QUAD_SITL, *policy, *args, "--json", str(out)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     if done.returncode != 0:
         raise SystemExit(f"quad-sitl {' '.join(args)} exited {done.returncode}: {done.stderr.strip()}")
     return json.loads(out.read_text())
 
 
 def ours(vehicle: str, episodes: int, tmp: Path) -> dict:
-    return _quad_sitl(["--episodes", str(episodes), "--vehicle", vehicle], tmp)
+    return quad_sitl(["--episodes", str(episodes), "--vehicle", vehicle], tmp)
 
 
 def crazyflie_with_lag(tmp: Path) -> str:
@@ -75,7 +77,7 @@ def ours_250(tmp: Path) -> dict:
     )
     try:
         node = ["--node-only", "--connect", f"tcp:127.0.0.1:{port}", "--duration", "5", "--target=0.5,-0.3,0.4"]
-        return _quad_sitl(node, tmp)
+        return quad_sitl(node, tmp)
     finally:
         sim.wait(timeout=60)
 

@@ -91,8 +91,7 @@ def export_px4_raptor(checkpoint: Path, out_dir: Path) -> Exported:
         model.metadata_props.add(key=k, value=v)
     out_dir.mkdir(parents=True, exist_ok=True)
     tar = out_dir / "policy.tar"
-    digest = rltools_tar.write_policy_tar(tar, weights, ex_in, ex_out, checkpoint_name=name)
-    assert rltools_tar.sha256_hex(data) == digest
+    digest = rltools_tar.write_policy_tar_bytes(tar, data)
     onnx_path = out_dir / "policy.onnx"
     atomic_write(onnx_path, lambda f: f.write(model.SerializeToString()))
     atomic_write(out_dir / VEHICLE_BESIDE, lambda f: f.write(toml))

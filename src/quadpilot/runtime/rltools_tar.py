@@ -220,7 +220,11 @@ def write_policy_tar(
     checkpoint_name: str = "quadpilot",
 ) -> str:
     """Write policy.tar atomically and its SHA-256 beside it (`sha256sum -c` reads it); returns the hex."""
-    data = policy_tar_bytes(weights, example_in, example_out, checkpoint_name)
+    return write_policy_tar_bytes(path, policy_tar_bytes(weights, example_in, example_out, checkpoint_name))
+
+
+def write_policy_tar_bytes(path: str | Path, data: bytes) -> str:
+    """Write the bytes `policy_tar_bytes` made (checked there) as `write_policy_tar` does; returns the hex."""
     digest = sha256_hex(data)
     console.atomic_write(path, lambda f: f.write(data))
     line = f"{digest}  {Path(path).name}\n".encode()

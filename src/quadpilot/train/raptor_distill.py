@@ -130,11 +130,12 @@ def fly(policy, cfg: EnvConfig, n: int, rng, teacher=None, teacher_drives=False)
     h = None
     for t in range(T):
         x = px4_raptor.observation_batch(batch.state, batch.target, batch.heading, prev, out=xs[t])
-        action, h = policy(x, h)
         if teacher is not None:
             labels[t] = teacher_labels(teacher(batch.obs.copy()), batch.u_hover, order)
-            if teacher_drives:
-                action = labels[t]
+        if teacher_drives:  # the student's own answer would not be used
+            action = labels[t]
+        else:
+            action, h = policy(x, h)
         alive_at[t] = alive
         prev = np.clip(action, -1.0, 1.0).astype(np.float32)
         _, _, crashed, _, err = batch.step(contract_commands(prev, order), commands=True)
