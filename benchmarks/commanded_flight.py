@@ -137,7 +137,7 @@ def trace_from_tlog(path: Path) -> tuple[list[list], list[list]]:
     change of phase). See the module docstring for where each value comes from."""
     from pymavlink import mavutil
 
-    from quadpilot.autopilot.commands import MODE_NAMES
+    from quadpilot.autopilot.modes import MODE_NAMES
     from quadpilot.link.frames import Home
     from quadpilot.link.wire import state_from_hil_state_quaternion
 

@@ -1,5 +1,5 @@
 """The tables of docs/ground_station.md, printed from the vehicle's own data: the commands it answers
-(autopilot.commands.CommandHandlers._COMMANDS), the flight modes it takes (autopilot.commands.MODE_NAMES)
+(autopilot.commands.COMMANDS), the flight modes it takes (autopilot.modes.MODE_NAMES)
 and its parameters (autopilot.param_protocol.PARAMS).
 
     .venv/bin/python docs/commander_tables.py commands
@@ -19,7 +19,7 @@ import sys
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from quadpilot.autopilot import commands
+from quadpilot.autopilot import commands, modes
 from quadpilot.autopilot import param_protocol as params
 
 COMMANDS = {
@@ -105,7 +105,7 @@ def _check(described: dict, names: list[str], what: str) -> None:
 
 
 def command_table() -> None:
-    ids = list(commands.CommandHandlers._COMMANDS)
+    ids = list(commands.COMMANDS)
     names = [mavlink2.enums["MAV_CMD"][i].name for i in ids]
     _check(COMMANDS, names, "commands")
     print("| command | id | what the vehicle does |")
@@ -115,11 +115,11 @@ def command_table() -> None:
 
 
 def mode_table() -> None:
-    names = list(commands.MODE_NAMES.values())
+    names = list(modes.MODE_NAMES.values())
     _check(MODES, names, "modes")
     print("| mode (MAVSDK FlightMode) | PX4 main / sub mode | what it does |")
     print("|---|---|---|")
-    for (main, sub), name in commands.MODE_NAMES.items():
+    for (main, sub), name in modes.MODE_NAMES.items():
         print(f"| {name} | {main} / {sub} | {MODES[name]} |")
 
 

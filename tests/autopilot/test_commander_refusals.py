@@ -1,5 +1,5 @@
 """The refusal of every command in the supported table (docs/commander_tables.py commands, from
-`CommandHandlers._COMMANDS`), in one place, through packed MAVLink bytes: what a ground station
+`commands.COMMANDS`), in one place, through packed MAVLink bytes: what a ground station
 sends when the vehicle cannot do it, the one COMMAND_ACK's result, the STATUSTEXT saying why, and
 that nothing changed. The refusals tests/autopilot/test_commander_commands.py already checks are not
 repeated here; `test_every_supported_command_has_a_refusal_test` fails when a command is added to
@@ -32,7 +32,7 @@ import pytest
 from commander_gcs import Gcs, ack, mission_item, of_type, texts, upload
 from pymavlink.dialects.v20 import common as M
 
-from quadpilot.autopilot.commands import CommandHandlers
+from quadpilot.autopilot.commands import COMMANDS
 
 NAN7 = [math.nan] * 7
 # command → the tests that check its refusal (this file's, and test_commander_commands.py's)
@@ -75,7 +75,7 @@ def flying(**params) -> Gcs:
 
 
 def test_every_supported_command_has_a_refusal_test():
-    assert set(REFUSAL_TESTS) == set(CommandHandlers._COMMANDS)
+    assert set(REFUSAL_TESTS) == set(COMMANDS)
     for command, names in REFUSAL_TESTS.items():
         for name in names:
             module, _, test = name.rpartition("::")

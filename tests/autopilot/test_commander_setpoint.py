@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from quadpilot.autopilot.navigator import rtl_altitude
+from quadpilot.autopilot.modes import Return
 from quadpilot.autopilot.param_protocol import PARAMS
 from quadpilot.autopilot.setpoint import LandDetector, LandLimits, Mover, collective_thrust, land_speed
 
@@ -160,7 +160,7 @@ def test_thrust_leaves_the_ground_at_once_and_disarmed_is_landed():
 
 
 def rtl(pos, **params) -> float:
-    return rtl_altitude(np.array(pos, float), {**DEFAULTS, **params})
+    return Return.altitude(np.array(pos, float), {**DEFAULTS, **params})
 
 
 def test_return_altitude_follows_px4s_cone():

@@ -2,8 +2,10 @@
 
 - `node`: the MAVLink node that flies a policy against a PX4-API simulator (one receive point,
   one actuator message per simulation step) and `flight_log`, what a flight recorded;
-- `commander` (with `commands`): arming, modes and the commands a ground station sends;
-  `navigator`: the flight modes that move the vehicle; `setpoint`: where the policy is asked to fly;
+- `commander`: arming, mode switching, link-loss failsafe, one table of message handlers;
+  `commands`: one function per command a ground station sends, in one table;
+  `modes`: the navigator's flight modes, one class each as PX4's navigator has them (Takeoff, Land,
+  Return, Loiter, Mission); `navigator`: flies a mode's legs; `setpoint`: where the policy is asked to fly;
 - `mission_protocol` and `param_protocol`: MAVLink's mission and parameter protocols;
 - `streams`: the telemetry a ground station sees; `ground_station`: the node's ground-station socket.
 

@@ -32,8 +32,10 @@ The rules, and where they come from (commands: `commands`):
   resumes what was being flown; after the action the ground station takes over with a new command.
   Which clock: the one the owner passes (simulated time, which runs with the wall clock in a
   real-time simulation).
-Parameters: `params`; missions: `missions` and `navigator`; the moving target and the land
-detector: `setpoint`; telemetry: `streams`.
+Parameters: `param_protocol`; missions: `mission_protocol` (the transfer) and `modes.Mission` (where
+the flight is in it); the flight modes: `modes`, their legs flown by `navigator`; the moving target
+and the land detector: `setpoint`; telemetry: `streams`. Message dispatch: `Commander.HANDLERS`, a
+table of functions, as the node's (`node._Flight.HANDLERS`); commands: `commands.COMMANDS`, likewise.
 """
 
 from __future__ import annotations
@@ -48,20 +50,9 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.core.state import POS, RATES, STATE_DIM, VEL, YAW, Z
 from quadpilot.link.frames import Home
 
-from . import mission_protocol, navigator, streams
-from .commands import (
-    ACCEPTED,
-    DENIED,
-    HOLD,
-    LAND,
-    MISSION,
-    MODE_NAMES,
-    POSCTL,
-    RTL,
-    TEMP_REJECTED,
-    CommandHandlers,
-    enu_yaw,
-)
+from . import commands, mission_protocol, streams
+from .commands import ACCEPTED, DENIED, TEMP_REJECTED, enu_yaw
+from .modes import HOLD, MISSION, MODE_NAMES, POSCTL, Land, Loiter, Mission, Mode, Return
 from .navigator import Navigator
 from .param_protocol import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable
 from .setpoint import LandDetector, LandLimits, Mover
@@ -115,7 +106,7 @@ class Setpoint:
     motors_enabled: bool
 
 
-class Commander(CommandHandlers):
+class Commander:
     """See the module docstring; `setpoint` is the policy's target after each `step`."""
 
     def __init__(self, cfg: CommanderConfig | None = None) -> None:
@@ -135,15 +126,13 @@ class Commander(CommandHandlers):
         self.yaw = 0.0
         self.armed_at = self.landed_at = 0.0
         self.flown = False  # left the ground since arming
-        self.mission_seq, self.mission_state, self.reached = 0, M.MISSION_STATE_NO_MISSION, -1
-        self._reached_resends = 0
-        self._mission_version = 0
+        self.mission = Mission(self.missions, self.mav)
         self.last_gcs: float | None = None
         self.failsafe: str | None = None  # None, "hold" (waiting COM_FAIL_ACT_T), "action" or "motors cut"
         self.failsafe_at = 0.0
         self.dropped: Counter = Counter()
         self.received = 0
-        self._recent: dict = {}
+        self.recent_commands: dict = {}  # (source, command, is COMMAND_INT) → (arguments, result, time)
         self._out: list = []
 
     # --- outputs ---------------------------------------------------------------------------------
@@ -161,7 +150,19 @@ class Commander(CommandHandlers):
             return M.MAV_LANDED_STATE_LANDING
         return M.MAV_LANDED_STATE_IN_AIR
 
-    def _text(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
+    @property
+    def mission_state(self) -> int:
+        return self.mission.state
+
+    @property
+    def mission_seq(self) -> int:
+        return self.mission.seq
+
+    def send(self, msg) -> None:
+        """Queue a message for the owner to send with the answer of this `handle` or `step`."""
+        self._out.append(msg)
+
+    def text(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
         self._out.append(self.mav.statustext_encode(severity, text.encode()[:50]))
 
     def heartbeat(self):
@@ -174,12 +175,12 @@ class Commander(CommandHandlers):
             M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, base, main << 16 | sub << 24, status
         )
 
-    def _set_mode(self, mode: tuple) -> None:
+    def set_mode(self, mode: tuple) -> None:
         if mode != self.mode:
             self.mode = mode
             self._out.append(self.heartbeat())
 
-    def _message(self, msg_id: int):
+    def message(self, msg_id: int):
         """The message `msg_id` now, or None when it needs a state or home not known yet."""
         s, home, mav, now = self.state, self.home, self.mav, self.now
         if msg_id == streams.HEARTBEAT:
@@ -188,12 +189,12 @@ class Commander(CommandHandlers):
             return streams.autopilot_version(mav, self.cfg.flight_sw_version, self.cfg.uid)
         if msg_id == streams.SYS_STATUS:
             return streams.sys_status(
-                mav, self._armable() is None or self.armed, sum(self.dropped.values()), self.received
+                mav, self.armable() is None or self.armed, sum(self.dropped.values()), self.received
             )
         if msg_id == streams.EXTENDED_SYS_STATE:
             return streams.extended_sys_state(mav, self.landed_state)
         if msg_id == streams.MISSION_CURRENT:
-            return self._mission_current()
+            return self.mission.current(self.mode == MISSION)
         if s is None or home is None:
             return None
         if msg_id == streams.HOME_POSITION:
@@ -210,11 +211,6 @@ class Commander(CommandHandlers):
             return streams.local_position_ned(mav, s, now)
         raise ValueError(f"message {msg_id} cannot be built")
 
-    def _mission_current(self):
-        n = len(self.missions.items)
-        mode = 1 if self.mode == MISSION else 2  # MAVLink MISSION_CURRENT.mission_mode
-        return self.mav.mission_current_encode(self.mission_seq, n if n else 65535, self.mission_state, mode)
-
     # --- input ---------------------------------------------------------------------------------------
     def handle(self, msg, now: float) -> list:
         """One message from the ground station → the messages to send in answer."""
@@ -230,7 +226,7 @@ class Commander(CommandHandlers):
             return []
         self.received += 1
         self._link_alive(now)
-        handler = self._HANDLERS.get(kind)
+        handler = self.HANDLERS.get(kind)
         if handler is None:
             self.dropped[f"unexpected_{kind.lower()}"] += 1
         else:
@@ -251,28 +247,39 @@ class Commander(CommandHandlers):
         replies, texts = self.params.handle(msg)
         self._out += replies
         for t in texts:
-            self._text(t, M.MAV_SEVERITY_WARNING)
+            self.text(t, M.MAV_SEVERITY_WARNING)
 
     def _on_mission(self, msg) -> None:
         replies, texts = self.missions.handle(msg, self.now)
         self._out += replies
         for t in texts:
-            self._text(t, M.MAV_SEVERITY_WARNING)
+            self.text(t, M.MAV_SEVERITY_WARNING)
         self._mission_changed()
 
-    # --- arming, missions ----------------------------------------------------------------------------
-    def _arm(self) -> None:
+    # --- arming, modes, missions --------------------------------------------------------------------
+    def armable(self) -> str | None:
+        """Why the vehicle may not arm now, or None."""
+        if self.state is None or self.home is None:
+            return "no position yet"
+        g = self.cfg.ground_alt_max_m
+        if g is not None and self.state[Z] > g:
+            return f"not on the ground ({self.state[Z]:.1f} m above home)"
+        if self.failsafe:
+            return "failsafe active"
+        return None
+
+    def arm(self) -> None:
         self.armed, self.flown, self.armed_at = True, False, self.now
         self.mover.reset(self.state[POS])
         self.yaw = float(self.state[YAW])
         self.nav.hold()
-        if self.mode == MISSION and self.missions.items:
-            self._start_mission(None)
+        if self.mode == MISSION and self.mission.items:
+            self.start_mission(None)
         elif self.mode != POSCTL:
             self.mode = HOLD
         self._out.append(self.heartbeat())
 
-    def _disarm(self) -> None:
+    def disarm(self) -> None:
         self.armed, self.motors = False, False
         self.nav.hold()
         if self.state is not None:
@@ -282,6 +289,24 @@ class Commander(CommandHandlers):
         self.nav.freeze(False)
         self.mode = HOLD  # a new flight starts from Hold (MAVSDK arms from there)
         self._out.append(self.heartbeat())
+
+    def fly(self, mode: Mode) -> None:
+        """Switch to a navigator mode (not Mission: `start_mission`) and fly its legs from the
+        reference; a mission being flown is paused."""
+        self._leave_mission()
+        legs = mode.legs(self.mover.ref, self.params)
+        if legs is None:
+            self.nav.hold()
+        else:
+            self.nav.start(legs, keep_speed=mode.keep_speed)
+        self.set_mode(mode.custom_mode)
+
+    def hold(self, mode: tuple = HOLD) -> None:
+        """Hold (or Position, which holds here too): stop the reference where it is."""
+        self._leave_mission()
+        if self.armed:
+            self.nav.hold()
+        self.set_mode(mode)
 
     def arm_in_air(self, state=None) -> None:
         """Start armed and holding where the vehicle is (a simulator that starts in the air): at the
@@ -294,7 +319,7 @@ class Commander(CommandHandlers):
             self.state = s
         if self.state is None:
             raise ValueError("arm_in_air needs the vehicle's state: a first step(), or state=")
-        self._arm()
+        self.arm()
         self.landed, self.flown, self.motors = False, True, True
         self.detector.landed_h.state = self.detector.maybe_landed.state = self.detector.ground_contact.state = False
 
@@ -303,77 +328,59 @@ class Commander(CommandHandlers):
         so as PX4 reports a failsafe, disarmed with system status CRITICAL and a STATUSTEXT, so that a
         ground station does not go on showing an armed vehicle. Returns the messages to send."""
         if self.armed:
-            self._disarm()
-            self._out.pop()  # _disarm's heartbeat: the one below says the same, and CRITICAL
+            self.disarm()
+            self._out.pop()  # disarm's heartbeat: the one below says the same, and CRITICAL
         self.failsafe = "motors cut"  # heartbeats say CRITICAL until the next step while disarmed
-        self._text(f"Failsafe: {reason}", M.MAV_SEVERITY_CRITICAL)
+        self.text(f"Failsafe: {reason}", M.MAV_SEVERITY_CRITICAL)
         self._out.append(self.heartbeat())
         out, self._out = self._out, []
         return out
 
     def _mission_changed(self) -> None:
-        if self.missions.version != self._mission_version:
-            self._mission_version = self.missions.version
-            self.mission_seq, self.reached = 0, -1
-            self.mission_state = M.MISSION_STATE_NOT_STARTED if self.missions.items else M.MISSION_STATE_NO_MISSION
-            self._out.append(self._mission_current())
+        if self.mission.changed():
+            self._out.append(self.mission.current(self.mode == MISSION))
 
-    def _start_mission(self, first: int | None) -> tuple[int, str | None]:
-        items = self.missions.items
-        if not items:
-            return DENIED, "Mission denied: no mission uploaded"
-        if self.home is None:
-            return TEMP_REJECTED, "Mission denied: no position yet"
-        for it in items:
-            if it.has_position() and (fence := navigator.outside_fence(it.local(self.home), self.params)):
-                return DENIED, f"Mission denied: item {it.seq} {fence}"[:50]
-        if first is not None:
-            self.mission_seq, self.reached = first, -1
-        elif self.mission_state == M.MISSION_STATE_COMPLETE:
-            self.mission_seq, self.reached = 0, -1
-        self._set_mode(MISSION)
+    def start_mission(self, first: int | None) -> tuple[int, str | None]:
+        """Mission mode, from item `first` or where the mission was paused; flown once armed."""
+        mission = self.mission
+        why = mission.refusal(self.home, self.params)
+        if why is not None:
+            return (TEMP_REJECTED if mission.items and self.home is None else DENIED), why
+        mission.begin(first)
+        self.set_mode(MISSION)
         if not self.armed:  # PX4: the mode can be chosen on the ground; the mission starts when armed
             return ACCEPTED, None
-        legs = navigator.item_legs(items[self.mission_seq], self.mover.ref, self.home, self.params)
-        if self.landed:
-            alt = navigator.mission_takeoff_altitude(items, self.mission_seq, self.home, self.params)
-            if alt is not None:
-                legs = navigator.takeoff_legs(self.mover.ref, alt, tag=None) + legs
-        self.nav.start(legs)
-        self._item_started(items[self.mission_seq])
-        self.mission_state = M.MISSION_STATE_ACTIVE
-        self._out.append(self._mission_current())
+        self.nav.start(mission.legs(self.mover.ref, self.params, self.home, self.landed))
+        self._item_started(mission.seq)
+        self._out.append(mission.current(True))
         return ACCEPTED, None
 
-    def _item_started(self, item) -> None:
-        if item.command == mission_protocol.NAV_WAYPOINT and math.isfinite(item.param4):
-            self.yaw = enu_yaw(math.radians(item.param4))
+    def _item_started(self, seq: int) -> None:
+        heading = self.mission.item_yaw(seq)
+        if heading is not None:
+            self.yaw = enu_yaw(heading)
 
     def _leave_mission(self) -> None:
-        if self.mission_state == M.MISSION_STATE_ACTIVE:
-            self.mission_state = M.MISSION_STATE_PAUSED
-            self._out.append(self._mission_current())
+        if self.mission.pause():
+            self._out.append(self.mission.current(self.mode == MISSION))
 
     def _item_reached(self, seq: int) -> None:
         """MISSION_ITEM_REACHED, then the next item, or the end (Hold, unless it ended on the ground)."""
-        items = self.missions.items
-        self.reached, self._reached_resends = seq, 0
+        mission = self.mission
         self._out.append(self.mav.mission_item_reached_encode(seq))
-        if seq + 1 >= len(items):
-            self.mission_state = M.MISSION_STATE_COMPLETE
-            self._text("Mission finished")
+        what = mission.item_reached(seq)
+        if what == "finished":
+            self.text("Mission finished")
             if not self.landed:
                 self.nav.hold()
-                self._set_mode(HOLD)
-        elif not items[seq].autocontinue:  # wait here until told to go on (DO_SET_MODE MISSION)
-            self.mission_seq, self.mission_state = seq + 1, M.MISSION_STATE_PAUSED
+                self.set_mode(HOLD)
+        elif what == "wait":  # wait here until told to go on (DO_SET_MODE MISSION)
             self.nav.hold()
-            self._set_mode(HOLD)
+            self.set_mode(HOLD)
         else:
-            self.mission_seq = seq + 1
-            self.nav.start(navigator.item_legs(items[seq + 1], self.mover.ref, self.home, self.params), keep_speed=True)
-            self._item_started(items[seq + 1])
-        self._out.append(self._mission_current())
+            self.nav.start(mission.next_legs(self.mover.ref, self.home, self.params), keep_speed=True)
+            self._item_started(mission.seq)
+        self._out.append(mission.current(self.mode == MISSION))
 
     # --- the control step ----------------------------------------------------------------------------
     def step(self, state, home: Home, now: float, thrust: float) -> list:
@@ -405,32 +412,30 @@ class Commander(CommandHandlers):
         )
         if self.armed and was and not self.landed:
             self.flown = True
-            self._text("Takeoff detected")
+            self.text("Takeoff detected")
         elif self.armed and self.landed and not was:
             self.landed_at = now
-            self._text("Landing detected")
+            self.text("Landing detected")
         for tag in self.nav.update(now, dt, s[POS], self.landed):
             if tag == "takeoff":
-                self._set_mode(HOLD)
+                self.set_mode(HOLD)
             elif isinstance(tag, tuple) and tag[0] == "item":
                 self._item_reached(tag[1])
         self._auto_disarm(now)
         self._link_check(now)
         self.motors = self.armed and not (self.landed and not self.nav.taking_off)
         self.motors = self.motors and not (self.nav.landing and self.detector.contact)
-        self.missions.locked = self.armed and self.mode == MISSION and self.mission_state == M.MISSION_STATE_ACTIVE
+        self.missions.locked = self.armed and self.mode == MISSION and self.mission.active
         replies, texts = self.missions.tick(now)
         self._out += replies
         for t in texts:
-            self._text(t, M.MAV_SEVERITY_WARNING)
+            self.text(t, M.MAV_SEVERITY_WARNING)
         for msg_id in self.streams.due(now):
-            msg = self._message(msg_id)
+            msg = self.message(msg_id)
             if msg is not None:
                 self._out.append(msg)
-            if msg_id == streams.MISSION_CURRENT and self.reached >= 0 and self._reached_resends < 10:
-                # PX4 repeats the last MISSION_ITEM_REACHED (mavlink_mission.cpp, up to 10 times)
-                self._reached_resends += 1
-                self._out.append(self.mav.mission_item_reached_encode(self.reached))
+            if msg_id == streams.MISSION_CURRENT and (again := self.mission.repeat_reached()) is not None:
+                self._out.append(again)
         out, self._out = self._out, []
         return out
 
@@ -439,11 +444,11 @@ class Commander(CommandHandlers):
             return
         p = self.params
         if self.flown and p["COM_DISARM_LAND"] > 0 and now - self.landed_at >= p["COM_DISARM_LAND"]:
-            self._disarm()
-            self._text("Disarmed by landing")
+            self.disarm()
+            self.text("Disarmed by landing")
         elif not self.flown and p["COM_DISARM_PRFLT"] > 0 and now - self.armed_at >= p["COM_DISARM_PRFLT"]:
-            self._disarm()
-            self._text("Disarmed by auto preflight disarming")
+            self.disarm()
+            self.text("Disarmed by auto preflight disarming")
 
     def _link_alive(self, now: float) -> None:
         self.last_gcs = now
@@ -451,7 +456,7 @@ class Commander(CommandHandlers):
             if self.failsafe == "hold":
                 self.nav.freeze(False)  # resume what was being flown
             self.failsafe = None
-            self._text("Ground station connection regained")
+            self.text("Ground station connection regained")
             self._out.append(self.heartbeat())
 
     def _link_check(self, now: float) -> None:
@@ -462,7 +467,7 @@ class Commander(CommandHandlers):
             if flying and act and self.last_gcs is not None and now - self.last_gcs > p["COM_DL_LOSS_T"]:
                 self.failsafe, self.failsafe_at = "hold", now
                 self.nav.freeze(True)
-                self._text("Connection to ground station lost", M.MAV_SEVERITY_CRITICAL)
+                self.text("Connection to ground station lost", M.MAV_SEVERITY_CRITICAL)
                 self._out.append(self.heartbeat())
             return
         if self.failsafe == "hold" and now - self.failsafe_at >= p["COM_FAIL_ACT_T"]:
@@ -470,24 +475,21 @@ class Commander(CommandHandlers):
             self.nav.freeze(False)
             self._leave_mission()
             if act == NAV_DLL_RETURN and not self.landed:
-                self.nav.start(navigator.rtl_legs(self.mover.ref, p))
-                self._set_mode(RTL)
+                self.fly(Return())
             elif act == NAV_DLL_LAND:
-                self.nav.start(navigator.land_legs(self.mover.ref[0:2]))
-                self._set_mode(LAND)
+                self.fly(Land(self.mover.ref[0:2]))
             else:  # NAV_DLL_HOLD (or Return once on the ground)
-                self.nav.hold()
-                self._set_mode(HOLD)
-            self._text(f"Failsafe activated: {MODE_NAMES[self.mode]}", M.MAV_SEVERITY_CRITICAL)
+                self.fly(Loiter())
+            self.text(f"Failsafe activated: {MODE_NAMES[self.mode]}", M.MAV_SEVERITY_CRITICAL)
         if not self.armed:
             self.failsafe = None
 
-    _HANDLERS = {
+    HANDLERS = {
         "HEARTBEAT": _on_heartbeat,
         "PING": _on_ping,
-        "COMMAND_LONG": CommandHandlers._on_command,
-        "COMMAND_INT": CommandHandlers._on_command,
-        "SET_MODE": CommandHandlers._on_set_mode,
+        "COMMAND_LONG": commands.on_command,
+        "COMMAND_INT": commands.on_command,
+        "SET_MODE": commands.on_set_mode,
         "PARAM_REQUEST_LIST": _on_params,
         "PARAM_REQUEST_READ": _on_params,
         "PARAM_SET": _on_params,
@@ -500,5 +502,5 @@ class Commander(CommandHandlers):
         "MISSION_ACK": _on_mission,
         "MISSION_CLEAR_ALL": _on_mission,
     }
-    """Message type → handler, as the node dispatches (`node._Flight.HANDLERS`); types not here are
-    counted as dropped (`unexpected_<type>`)."""
+    """Message type → handler (a function of the commander and the message), as the node dispatches
+    (`node._Flight.HANDLERS`); types not here are counted as dropped (`unexpected_<type>`)."""

@@ -1,7 +1,10 @@
 """The commands a ground station sends (COMMAND_LONG, COMMAND_INT, SET_MODE) and their answers.
 
-`CommandHandlers` is the half of `commander.Commander` that executes commands; it works on the
-commander's state (arming, mode, navigator, missions, streams), which `commander` owns.
+One function per command, in one table (`COMMANDS`: MAV_CMD → a function of the commander `cmdr`,
+a `commander.Commander`, which imports this module, and the command; it returns the result and
+why). `on_command` and `on_set_mode` are the commander's handlers of the three messages. A command
+acts through the commander's own operations (arm, disarm, `fly` a navigator mode, start the
+mission) and reads its state; it keeps none of its own.
 
 - Every COMMAND_LONG and COMMAND_INT for this vehicle gets exactly one COMMAND_ACK: ACCEPTED, DENIED
   (cannot be done: bad parameters or not in this state), TEMPORARILY_REJECTED (not yet: no position
@@ -41,18 +44,15 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.core.state import POS_XY, Z
 from quadpilot.link.frames import geodetic_to_local
 
-from . import mission_protocol, navigator, streams
-from .navigator import Leg
+from . import mission_protocol, streams
+from .modes import LAND, MISSION, MODE_NAMES, RTL, TAKEOFF, Land, Loiter, Return, Takeoff
+from .navigator import outside_fence
 
 M = mavlink2
 ACCEPTED, TEMP_REJECTED, DENIED = M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_TEMPORARILY_REJECTED, M.MAV_RESULT_DENIED
 UNSUPPORTED, FAILED = M.MAV_RESULT_UNSUPPORTED, M.MAV_RESULT_FAILED
 FORCE_DISARM = 21196  # COMPONENT_ARM_DISARM param2 that disarms in flight (MAVLink common.xml)
 INT32_MAX = 2**31 - 1  # COMMAND_INT x/y "unchanged"
-
-# PX4 custom modes (main, sub), src/modules/commander/px4_custom_mode.h
-HOLD, TAKEOFF, MISSION, RTL, LAND, POSCTL = (4, 3), (4, 2), (4, 4), (4, 5), (4, 6), (3, 0)
-MODE_NAMES = {HOLD: "Hold", TAKEOFF: "Takeoff", MISSION: "Mission", RTL: "Return", LAND: "Land", POSCTL: "Position"}
 
 
 @dataclass
@@ -66,238 +66,232 @@ class _Cmd:
     src: tuple
 
 
-class CommandHandlers:
-    """COMMAND_LONG / COMMAND_INT / SET_MODE → COMMAND_ACK (see the module docstring)."""
+Result = tuple[int, "str | None"]
 
-    def _on_set_mode(self, msg) -> None:
-        """SET_MODE (deprecated): as DO_SET_MODE, acknowledged as that command (as PX4 does)."""
-        main, sub = (msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
-        self._execute(_Cmd(M.MAV_CMD_DO_SET_MODE, (msg.base_mode, main, sub, 0.0), 0, 0, 0, None, src), repeat=False)
 
-    def _on_command(self, msg) -> None:
-        is_int = msg.get_type() == "COMMAND_INT"
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
-        p = (msg.param1, msg.param2, msg.param3, msg.param4)
-        if is_int:
-            cmd = _Cmd(msg.command, p, msg.x, msg.y, msg.z, msg.frame, src)
+def on_set_mode(cmdr, msg) -> None:
+    """SET_MODE (deprecated): as DO_SET_MODE, acknowledged as that command (as PX4 does)."""
+    main, sub = (msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF
+    src = (msg.get_srcSystem(), msg.get_srcComponent())
+    _execute(cmdr, _Cmd(M.MAV_CMD_DO_SET_MODE, (msg.base_mode, main, sub, 0.0), 0, 0, 0, None, src), repeat=False)
+
+
+def on_command(cmdr, msg) -> None:
+    """COMMAND_LONG or COMMAND_INT."""
+    is_int = msg.get_type() == "COMMAND_INT"
+    src = (msg.get_srcSystem(), msg.get_srcComponent())
+    p = (msg.param1, msg.param2, msg.param3, msg.param4)
+    if is_int:
+        cmd = _Cmd(msg.command, p, msg.x, msg.y, msg.z, msg.frame, src)
+    else:
+        cmd = _Cmd(msg.command, p, msg.param5, msg.param6, msg.param7, None, src)
+    _execute(cmdr, cmd, repeat=not is_int and msg.confirmation > 0)
+
+
+def _execute(cmdr, c: _Cmd, repeat: bool) -> None:
+    key = (c.src, c.command, c.frame is not None)
+    args = (c.p, c.x, c.y, c.z, c.frame)
+    prior = cmdr.recent_commands.get(key)
+    if repeat and prior is not None and _same(prior[0], args) and cmdr.now - prior[2] <= cmdr.cfg.repeat_window_s:
+        result = prior[1]  # a resend: answered as before, not done twice
+    else:
+        run = COMMANDS.get(c.command)
+        if run is None:
+            result, why = UNSUPPORTED, None
         else:
-            cmd = _Cmd(msg.command, p, msg.param5, msg.param6, msg.param7, None, src)
-        self._execute(cmd, repeat=not is_int and msg.confirmation > 0)
+            try:
+                result, why = run(cmdr, c)
+            except Exception as e:  # never silence, never a dead loop: the ACK says it failed
+                cmdr.dropped["command_error"] += 1
+                result, why = FAILED, f"command {c.command} failed: {type(e).__name__}"
+        if why:
+            cmdr.text(why, M.MAV_SEVERITY_WARNING if result != ACCEPTED else M.MAV_SEVERITY_INFO)
+        cmdr.recent_commands[key] = (args, result, cmdr.now)
+    cmdr.send(cmdr.mav.command_ack_encode(c.command, result, 0, 0, c.src[0], c.src[1]))
 
-    def _execute(self, c: _Cmd, repeat: bool) -> None:
-        key = (c.src, c.command, c.frame is not None)
-        args = (c.p, c.x, c.y, c.z, c.frame)
-        prior = self._recent.get(key)
-        if repeat and prior is not None and _same(prior[0], args) and self.now - prior[2] <= self.cfg.repeat_window_s:
-            result = prior[1]  # a resend: answered as before, not done twice
-        else:
-            handler = self._COMMANDS.get(c.command)
-            if handler is None:
-                result, why = UNSUPPORTED, None
-            else:
-                try:
-                    result, why = handler(self, c)
-                except Exception as e:  # never silence, never a dead loop: the ACK says it failed
-                    self.dropped["command_error"] += 1
-                    result, why = FAILED, f"command {c.command} failed: {type(e).__name__}"
-            if why:
-                self._text(why, M.MAV_SEVERITY_WARNING if result != ACCEPTED else M.MAV_SEVERITY_INFO)
-            self._recent[key] = (args, result, self.now)
-        self._out.append(self.mav.command_ack_encode(c.command, result, 0, 0, c.src[0], c.src[1]))
 
-    # --- commands ------------------------------------------------------------------------------------
-    def _armable(self) -> str | None:
-        """Why the vehicle may not arm now, or None."""
-        if self.state is None or self.home is None:
-            return "no position yet"
-        g = self.cfg.ground_alt_max_m
-        if g is not None and self.state[Z] > g:
-            return f"not on the ground ({self.state[Z]:.1f} m above home)"
-        if self.failsafe:
-            return "failsafe active"
-        return None
-
-    def _cmd_arm(self, c: _Cmd) -> tuple[int, str | None]:
-        if c.p[0] == 1.0:
-            if self.armed:
-                return (ACCEPTED, None) if self.landed else (DENIED, "Arming denied: already flying")
-            why = self._armable()
-            if why is not None:
-                return (TEMP_REJECTED if self.state is None else DENIED), f"Arming denied: {why}"
-            self._arm()
-            return ACCEPTED, "Armed by external command"
-        if c.p[0] != 0.0:
-            return DENIED, f"arm/disarm: param1 {c.p[0]}, expected 0 or 1"
-        if not self.armed:
-            return ACCEPTED, None
-        if not self.landed and c.p[1] != FORCE_DISARM:
-            return DENIED, "Disarming denied: not landed"
-        self._disarm()
-        return ACCEPTED, "Disarmed by external command"
-
-    def _cmd_takeoff(self, c: _Cmd) -> tuple[int, str | None]:
-        if (why := self._need("Takeoff", land_ok=True)) is not None:
-            return why
-        s = self.state
-        if math.isfinite(c.z):
-            alt = c.z if c.frame in mission_protocol.RELATIVE_FRAMES else c.z - self.home.alt_m
-        elif self.mode == TAKEOFF and self.nav.taking_off:
-            return ACCEPTED, None  # the same take-off again
-        else:
-            alt = float(s[Z]) + self.params["MIS_TAKEOFF_ALT"]
-        if alt <= s[Z]:
-            return DENIED, "Takeoff denied: already higher than that"  # ≤ 50 chars: STATUSTEXT
-        goal = np.array([self.mover.ref[0], self.mover.ref[1], alt])
-        if (fence := navigator.outside_fence(goal, self.params)) is not None:
-            return DENIED, f"Takeoff denied: {fence}"
-        self._leave_mission()
-        self.nav.start(navigator.takeoff_legs(self.mover.ref, alt))
-        self._set_mode(TAKEOFF)
-        return ACCEPTED, f"Takeoff to {alt:.1f} m"
-
-    def _cmd_land(self, c: _Cmd) -> tuple[int, str | None]:
-        if (why := self._need("Land", land_ok=True)) is not None:
-            return why
-        if self.mode == LAND:
-            return ACCEPTED, None
-        self._leave_mission()
-        self.nav.start(navigator.land_legs(self.state[POS_XY]))
-        self._set_mode(LAND)
+# --- commands ----------------------------------------------------------------------------------------
+def arm_disarm(cmdr, c: _Cmd) -> Result:
+    if c.p[0] == 1.0:
+        if cmdr.armed:
+            return (ACCEPTED, None) if cmdr.landed else (DENIED, "Arming denied: already flying")
+        why = cmdr.armable()
+        if why is not None:
+            return (TEMP_REJECTED if cmdr.state is None else DENIED), f"Arming denied: {why}"
+        cmdr.arm()
+        return ACCEPTED, "Armed by external command"
+    if c.p[0] != 0.0:
+        return DENIED, f"arm/disarm: param1 {c.p[0]}, expected 0 or 1"
+    if not cmdr.armed:
         return ACCEPTED, None
+    if not cmdr.landed and c.p[1] != FORCE_DISARM:
+        return DENIED, "Disarming denied: not landed"
+    cmdr.disarm()
+    return ACCEPTED, "Disarmed by external command"
 
-    def _cmd_rtl(self, c: _Cmd) -> tuple[int, str | None]:
-        if (why := self._need("Return")) is not None:
-            return why
-        if self.mode == RTL:
-            return ACCEPTED, None
-        self._leave_mission()
-        self.nav.start(navigator.rtl_legs(self.mover.ref, self.params))
-        self._set_mode(RTL)
+
+def takeoff(cmdr, c: _Cmd) -> Result:
+    if (why := _need(cmdr, "Takeoff", land_ok=True)) is not None:
+        return why
+    s = cmdr.state
+    if math.isfinite(c.z):
+        alt = c.z if c.frame in mission_protocol.RELATIVE_FRAMES else c.z - cmdr.home.alt_m
+    elif cmdr.mode == TAKEOFF and cmdr.nav.taking_off:
+        return ACCEPTED, None  # the same take-off again
+    else:
+        alt = float(s[Z]) + cmdr.params["MIS_TAKEOFF_ALT"]
+    if alt <= s[Z]:
+        return DENIED, "Takeoff denied: already higher than that"  # ≤ 50 chars: STATUSTEXT
+    goal = np.array([cmdr.mover.ref[0], cmdr.mover.ref[1], alt])
+    if (fence := outside_fence(goal, cmdr.params)) is not None:
+        return DENIED, f"Takeoff denied: {fence}"
+    cmdr.fly(Takeoff(alt))
+    return ACCEPTED, f"Takeoff to {alt:.1f} m"
+
+
+def land(cmdr, c: _Cmd) -> Result:
+    if (why := _need(cmdr, "Land", land_ok=True)) is not None:
+        return why
+    if cmdr.mode == LAND:
         return ACCEPTED, None
+    cmdr.fly(Land(cmdr.state[POS_XY]))
+    return ACCEPTED, None
 
-    def _cmd_reposition(self, c: _Cmd) -> tuple[int, str | None]:
-        if c.frame is None:
-            return M.MAV_RESULT_COMMAND_INT_ONLY, "DO_REPOSITION: send it as COMMAND_INT"
-        if (why := self._need("Goto")) is not None:
-            return why
-        if c.frame not in mission_protocol.GLOBAL_FRAMES:
-            return DENIED, f"Goto denied: frame {c.frame}, expected 0, 3, 5 or 6"
-        goal = (
-            self.nav.leg.goal.copy()
-            if self.nav.leg is not None and self.nav.leg.goal is not None
-            else self.mover.goal.copy()
-        )
-        if c.x != INT32_MAX and c.y != INT32_MAX:
-            if not (-900_000_000 <= c.x <= 900_000_000 and -1_800_000_000 <= c.y <= 1_800_000_000):
-                return DENIED, f"Goto denied: lat/lon {c.x}/{c.y} degE7 off the globe"
-            goal[0:2] = geodetic_to_local(c.x, c.y, 0, self.home)[0:2]
-        if math.isfinite(c.z):
-            goal[2] = c.z if c.frame in mission_protocol.RELATIVE_FRAMES else c.z - self.home.alt_m
-        if (fence := navigator.outside_fence(goal, self.params)) is not None:
-            return DENIED, f"Goto denied: {fence}"
-        self._leave_mission()
-        # the speed set by DO_CHANGE_SPEED carries over (navigator_main.cpp: param1 < 0 → the current cruising speed)
-        self.nav.start([Leg("move", goal, tag="goto")], keep_speed=True)
-        if math.isfinite(c.p[0]) and c.p[0] > 0:
-            self.nav.cruise = min(float(c.p[0]), self.params["MPC_XY_VEL_MAX"])
-        if math.isfinite(c.p[3]):
-            self.yaw = enu_yaw(c.p[3])
-        self._set_mode(HOLD)
+
+def return_to_launch(cmdr, c: _Cmd) -> Result:
+    if (why := _need(cmdr, "Return")) is not None:
+        return why
+    if cmdr.mode == RTL:
         return ACCEPTED, None
+    cmdr.fly(Return())
+    return ACCEPTED, None
 
-    def _cmd_set_mode(self, c: _Cmd) -> tuple[int, str | None]:
-        base, main, sub = c.p[0], c.p[1], c.p[2]
-        if not all(math.isfinite(v) for v in (base, main, sub)) or not int(base) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            return DENIED, "Mode denied: expected a PX4 custom mode"
-        mode = (int(main), int(sub)) if int(main) == 4 else (int(main), 0)
-        if mode not in MODE_NAMES:
-            return DENIED, f"Mode {int(main)}/{int(sub)} not supported"
-        if mode == self.mode:
-            return ACCEPTED, None
-        if mode == TAKEOFF:
-            return self._cmd_takeoff(_Cmd(M.MAV_CMD_NAV_TAKEOFF, (math.nan,) * 4, 0, 0, math.nan, None, c.src))
-        if mode == LAND:
-            return self._cmd_land(c)
-        if mode == RTL:
-            return self._cmd_rtl(c)
-        if mode == MISSION:
-            return self._start_mission(None)
-        self._leave_mission()  # Hold or Position: stop and hold where the reference is
-        if self.armed:
-            self.nav.hold()
-        self._set_mode(mode)
+
+def reposition(cmdr, c: _Cmd) -> Result:
+    if c.frame is None:
+        return M.MAV_RESULT_COMMAND_INT_ONLY, "DO_REPOSITION: send it as COMMAND_INT"
+    if (why := _need(cmdr, "Goto")) is not None:
+        return why
+    if c.frame not in mission_protocol.GLOBAL_FRAMES:
+        return DENIED, f"Goto denied: frame {c.frame}, expected 0, 3, 5 or 6"
+    leg = cmdr.nav.leg
+    goal = leg.goal.copy() if leg is not None and leg.goal is not None else cmdr.mover.goal.copy()
+    if c.x != INT32_MAX and c.y != INT32_MAX:
+        if not (-900_000_000 <= c.x <= 900_000_000 and -1_800_000_000 <= c.y <= 1_800_000_000):
+            return DENIED, f"Goto denied: lat/lon {c.x}/{c.y} degE7 off the globe"
+        goal[0:2] = geodetic_to_local(c.x, c.y, 0, cmdr.home)[0:2]
+    if math.isfinite(c.z):
+        goal[2] = c.z if c.frame in mission_protocol.RELATIVE_FRAMES else c.z - cmdr.home.alt_m
+    if (fence := outside_fence(goal, cmdr.params)) is not None:
+        return DENIED, f"Goto denied: {fence}"
+    # the speed set by DO_CHANGE_SPEED carries over (navigator_main.cpp: param1 < 0 → the current cruising speed)
+    cmdr.fly(Loiter(goal))
+    if math.isfinite(c.p[0]) and c.p[0] > 0:
+        cmdr.nav.cruise = min(float(c.p[0]), cmdr.params["MPC_XY_VEL_MAX"])
+    if math.isfinite(c.p[3]):
+        cmdr.yaw = enu_yaw(c.p[3])
+    return ACCEPTED, None
+
+
+def set_mode(cmdr, c: _Cmd) -> Result:
+    base, main, sub = c.p[0], c.p[1], c.p[2]
+    if not all(math.isfinite(v) for v in (base, main, sub)) or not int(base) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+        return DENIED, "Mode denied: expected a PX4 custom mode"
+    mode = (int(main), int(sub)) if int(main) == 4 else (int(main), 0)
+    if mode not in MODE_NAMES:
+        return DENIED, f"Mode {int(main)}/{int(sub)} not supported"
+    if mode == cmdr.mode:
         return ACCEPTED, None
+    if mode == TAKEOFF:
+        return takeoff(cmdr, _Cmd(M.MAV_CMD_NAV_TAKEOFF, (math.nan,) * 4, 0, 0, math.nan, None, c.src))
+    if mode == LAND:
+        return land(cmdr, c)
+    if mode == RTL:
+        return return_to_launch(cmdr, c)
+    if mode == MISSION:
+        return cmdr.start_mission(None)
+    cmdr.hold(mode)  # Hold or Position: stop and hold where the reference is
+    return ACCEPTED, None
 
-    def _cmd_mission_start(self, c: _Cmd) -> tuple[int, str | None]:
-        first = c.p[0]
-        if not math.isfinite(first) or not 0 <= first < max(1, len(self.missions.items)):
-            return DENIED, f"Mission start denied: first item {first}"
-        return self._start_mission(int(first))
 
-    def _cmd_change_speed(self, c: _Cmd) -> tuple[int, str | None]:
-        kind, speed = c.p[0], c.p[1]
-        if kind not in (0, 1, 2, 3) or not (speed in (-1.0, -2.0) or (math.isfinite(speed) and speed > 0)):
-            return DENIED, f"Speed change denied: type {kind}, speed {speed}"
-        self.nav.apply_speed(kind, speed)
-        self.nav._active = False  # re-aim the current leg at the new speed
-        return ACCEPTED, None
+def mission_start(cmdr, c: _Cmd) -> Result:
+    first = c.p[0]
+    if not math.isfinite(first) or not 0 <= first < max(1, len(cmdr.mission.items)):
+        return DENIED, f"Mission start denied: first item {first}"
+    return cmdr.start_mission(int(first))
 
-    def _cmd_request_message(self, c: _Cmd) -> tuple[int, str | None]:
-        msg_id = int(c.p[0]) if math.isfinite(c.p[0]) else -1
-        if msg_id not in streams.REQUESTABLE:
-            return UNSUPPORTED, None
-        msg = self._message(msg_id)
-        if msg is None:
-            return TEMP_REJECTED, None
-        self._out.append(msg)  # the message, then its ACK
-        return ACCEPTED, None
 
-    def _cmd_home(self, c: _Cmd) -> tuple[int, str | None]:
-        return self._cmd_request_message(_Cmd(c.command, (streams.HOME_POSITION, 0, 0, 0), 0, 0, 0, None, c.src))
+def change_speed(cmdr, c: _Cmd) -> Result:
+    kind, speed = c.p[0], c.p[1]
+    if kind not in (0, 1, 2, 3) or not (speed in (-1.0, -2.0) or (math.isfinite(speed) and speed > 0)):
+        return DENIED, f"Speed change denied: type {kind}, speed {speed}"
+    cmdr.nav.apply_speed(kind, speed)
+    cmdr.nav.reaim()
+    return ACCEPTED, None
 
-    def _cmd_capabilities(self, c: _Cmd) -> tuple[int, str | None]:
-        return self._cmd_request_message(_Cmd(c.command, (streams.AUTOPILOT_VERSION, 0, 0, 0), 0, 0, 0, None, c.src))
 
-    def _cmd_set_interval(self, c: _Cmd) -> tuple[int, str | None]:
-        msg_id = int(c.p[0]) if math.isfinite(c.p[0]) else -1
-        if msg_id not in streams.DEFAULT_INTERVALS_S:
-            return UNSUPPORTED, None
-        why = self.streams.set_interval(msg_id, c.p[1])
-        return (ACCEPTED, None) if why is None else (DENIED, f"Interval denied: {why}")
+def request_message(cmdr, c: _Cmd) -> Result:
+    msg_id = int(c.p[0]) if math.isfinite(c.p[0]) else -1
+    if msg_id not in streams.REQUESTABLE:
+        return UNSUPPORTED, None
+    msg = cmdr.message(msg_id)
+    if msg is None:
+        return TEMP_REJECTED, None
+    cmdr.send(msg)  # the message, then its ACK
+    return ACCEPTED, None
 
-    def _cmd_get_interval(self, c: _Cmd) -> tuple[int, str | None]:
-        msg_id = int(c.p[0]) if math.isfinite(c.p[0]) and 0 <= c.p[0] < 2**16 else -1
-        if msg_id < 0:
-            return DENIED, None
-        self._out.append(self.mav.message_interval_encode(msg_id, self.streams.interval_us(msg_id)))
-        return ACCEPTED, None
 
-    def _need(self, what: str, land_ok: bool = False) -> tuple[int, str] | None:
-        """The refusal of a flight command in this state, or None."""
-        if self.state is None or self.home is None:
-            return TEMP_REJECTED, f"{what} denied: no position yet"
-        if not self.armed:
-            return DENIED, f"{what} denied: disarmed"
-        if self.landed and not land_ok:
-            return DENIED, f"{what} denied: landed, take off first"
-        return None
+def get_home_position(cmdr, c: _Cmd) -> Result:
+    return request_message(cmdr, _Cmd(c.command, (streams.HOME_POSITION, 0, 0, 0), 0, 0, 0, None, c.src))
 
-    _COMMANDS = {
-        M.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm,
-        M.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
-        M.MAV_CMD_NAV_LAND: _cmd_land,
-        M.MAV_CMD_NAV_RETURN_TO_LAUNCH: _cmd_rtl,
-        M.MAV_CMD_DO_REPOSITION: _cmd_reposition,
-        M.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
-        M.MAV_CMD_MISSION_START: _cmd_mission_start,
-        M.MAV_CMD_DO_CHANGE_SPEED: _cmd_change_speed,
-        M.MAV_CMD_REQUEST_MESSAGE: _cmd_request_message,
-        M.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_set_interval,
-        M.MAV_CMD_GET_MESSAGE_INTERVAL: _cmd_get_interval,
-        M.MAV_CMD_GET_HOME_POSITION: _cmd_home,
-        M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: _cmd_capabilities,
-    }
+
+def autopilot_capabilities(cmdr, c: _Cmd) -> Result:
+    return request_message(cmdr, _Cmd(c.command, (streams.AUTOPILOT_VERSION, 0, 0, 0), 0, 0, 0, None, c.src))
+
+
+def set_message_interval(cmdr, c: _Cmd) -> Result:
+    msg_id = int(c.p[0]) if math.isfinite(c.p[0]) else -1
+    if msg_id not in streams.DEFAULT_INTERVALS_S:
+        return UNSUPPORTED, None
+    why = cmdr.streams.set_interval(msg_id, c.p[1])
+    return (ACCEPTED, None) if why is None else (DENIED, f"Interval denied: {why}")
+
+
+def get_message_interval(cmdr, c: _Cmd) -> Result:
+    msg_id = int(c.p[0]) if math.isfinite(c.p[0]) and 0 <= c.p[0] < 2**16 else -1
+    if msg_id < 0:
+        return DENIED, None
+    cmdr.send(cmdr.mav.message_interval_encode(msg_id, cmdr.streams.interval_us(msg_id)))
+    return ACCEPTED, None
+
+
+def _need(cmdr, what: str, land_ok: bool = False) -> Result | None:
+    """The refusal of a flight command in this state, or None."""
+    if cmdr.state is None or cmdr.home is None:
+        return TEMP_REJECTED, f"{what} denied: no position yet"
+    if not cmdr.armed:
+        return DENIED, f"{what} denied: disarmed"
+    if cmdr.landed and not land_ok:
+        return DENIED, f"{what} denied: landed, take off first"
+    return None
+
+
+COMMANDS = {
+    M.MAV_CMD_COMPONENT_ARM_DISARM: arm_disarm,
+    M.MAV_CMD_NAV_TAKEOFF: takeoff,
+    M.MAV_CMD_NAV_LAND: land,
+    M.MAV_CMD_NAV_RETURN_TO_LAUNCH: return_to_launch,
+    M.MAV_CMD_DO_REPOSITION: reposition,
+    M.MAV_CMD_DO_SET_MODE: set_mode,
+    M.MAV_CMD_MISSION_START: mission_start,
+    M.MAV_CMD_DO_CHANGE_SPEED: change_speed,
+    M.MAV_CMD_REQUEST_MESSAGE: request_message,
+    M.MAV_CMD_SET_MESSAGE_INTERVAL: set_message_interval,
+    M.MAV_CMD_GET_MESSAGE_INTERVAL: get_message_interval,
+    M.MAV_CMD_GET_HOME_POSITION: get_home_position,
+    M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: autopilot_capabilities,
+}
+"""MAV_CMD → the function that carries it out; a command not here is answered UNSUPPORTED."""
 
 
 def enu_yaw(heading_rad: float) -> float:

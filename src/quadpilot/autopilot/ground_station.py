@@ -24,7 +24,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.link import transport, wire
 
 from .commander import Commander, CommanderConfig
-from .commands import MODE_NAMES
+from .modes import MODE_NAMES
 
 NODE_SYSTEM_ID = 1
 NODE_COMPONENT_ID = 1  # MAV_COMP_ID_AUTOPILOT1

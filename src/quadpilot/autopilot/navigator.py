@@ -1,4 +1,4 @@
-"""Flight tasks as legs for the `setpoint.Mover`: take off, go to, land, return, fly mission items.
+"""The legs of a flight mode (`modes`), flown one after the other on the `setpoint.Mover`.
 
 A leg moves the reference to a goal and is done when the vehicle has arrived (reference at the goal,
 the vehicle within NAV_ACC_RAD horizontally and NAV_MC_ALT_RAD vertically, or a mission item's own
@@ -8,12 +8,6 @@ the land detector reports touchdown. Speeds are read from the parameters at ever
 PARAM_SET in flight takes effect at once: MPC_XY_CRUISE horizontally (or a DO_CHANGE_SPEED /
 DO_REPOSITION speed), MPC_Z_V_AUTO_UP and MPC_Z_V_AUTO_DN vertically, MPC_TKO_SPEED while taking
 off, and the landing speed schedule of `setpoint.land_speed` while landing.
-
-`rtl_legs` follows PX4's Return mode (src/modules/navigator/rtl.cpp, `calculate_return_alt_from_
-cone_half_angle`, and the RTL_* parameter descriptions): climb at the current position to the return
-altitude (RTL_RETURN_ALT above home, lowered inside the RTL_CONE_ANG cone near home, never below
-RTL_DESCEND_ALT, never a descent), fly home at that altitude, descend to RTL_DESCEND_ALT, wait
-RTL_LAND_DELAY (−1: stay), land.
 """
 
 from __future__ import annotations
@@ -23,9 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quadpilot.link.frames import Home
-
-from . import mission_protocol
 from .setpoint import Mover, land_speed
 
 LAND_DEPTH_M = 1000.0
@@ -95,6 +86,10 @@ class Navigator:
         if not frozen and self.frozen:
             self._active = False  # resume: aim at the leg's goal again
         self.frozen = frozen
+
+    def reaim(self) -> None:
+        """Aim the current leg at its goal again (at a new speed, from where the reference is)."""
+        self._active = False
 
     def apply_speed(self, speed_type: float, value: float) -> None:
         """DO_CHANGE_SPEED: type 0 airspeed or 1 ground speed (horizontal), 2 climb, 3 descent;
@@ -175,94 +170,6 @@ class Navigator:
             self.mover.speed_down = self._speeds("land", float(pos[2]))[2]
         self.mover.update(dt, pos)
         return done
-
-
-# --- tasks -------------------------------------------------------------------------------------
-
-
-def takeoff_legs(ref, altitude: float, tag="takeoff") -> list[Leg]:
-    """Climb at the reference's horizontal position to `altitude` m above home (never down)."""
-    goal = np.array([ref[0], ref[1], max(float(altitude), float(ref[2]))])
-    return [Leg("takeoff", goal, tag=tag)]
-
-
-def land_legs(xy, tag="land") -> list[Leg]:
-    return [Leg("land", np.array([xy[0], xy[1], 0.0]), tag=tag)]
-
-
-def rtl_altitude(pos, params) -> float:
-    """Return altitude above home (m) from the current position (home at the origin)."""
-    dist = math.hypot(pos[0], pos[1])
-    ret, desc, cone = params["RTL_RETURN_ALT"], params["RTL_DESCEND_ALT"], params["RTL_CONE_ANG"]
-    alt = float(pos[2])
-    if dist <= params["RTL_MIN_DIST"]:
-        target = desc
-    elif alt > ret or cone >= 90:
-        target = alt
-    elif cone <= 0:
-        target = ret
-    else:
-        needed = dist / math.tan(math.radians(min(max(cone, 1.0), 89.0)))
-        target = max(alt, min(max(needed, 0.0), ret))
-    return max(target, desc)
-
-
-def rtl_legs(ref, params, tag="rtl") -> list[Leg]:
-    ref = np.asarray(ref, np.float64)
-    alt = max(rtl_altitude(ref, params), float(ref[2]))  # climb first; never descend before returning
-    desc = min(params["RTL_DESCEND_ALT"], alt)
-    legs = [
-        Leg("move", np.array([ref[0], ref[1], alt])),
-        Leg("move", np.array([0.0, 0.0, alt])),
-        Leg("move", np.array([0.0, 0.0, desc])),
-    ]
-    delay = params["RTL_LAND_DELAY"]
-    if delay != 0:
-        legs.append(Leg("wait", seconds=delay))
-    legs += land_legs((0.0, 0.0), tag=tag)
-    return legs
-
-
-def item_legs(item: mission_protocol.MissionItem, ref, home: Home, params) -> list[Leg]:
-    """The legs of one mission item; the last one carries the tag ("item", seq)."""
-    tag = ("item", item.seq)
-    ref = np.asarray(ref, np.float64)
-    cmd = item.command
-    if cmd == mission_protocol.NAV_WAYPOINT:
-        hold = item.param1 if math.isfinite(item.param1) and item.param1 > 0 else 0.0
-        radius = item.param2 if math.isfinite(item.param2) and item.param2 > 0 else None
-        return [Leg("move", item.local(home), seconds=hold, acceptance=radius, tag=tag)]
-    if cmd == mission_protocol.NAV_TAKEOFF:
-        return takeoff_legs(ref, item.local(home)[2], tag=tag)
-    if cmd == mission_protocol.NAV_LAND:
-        if not item.has_position():
-            return land_legs(ref, tag=tag)
-        p = item.local(home)
-        return [Leg("move", np.array([p[0], p[1], ref[2]])), *land_legs(p, tag=tag)]
-    if cmd == mission_protocol.NAV_RETURN_TO_LAUNCH:
-        return rtl_legs(ref, params, tag=tag)
-    if cmd == mission_protocol.NAV_DELAY:
-        return [Leg("wait", seconds=float(item.param1), tag=tag)]
-    if cmd == mission_protocol.DO_CHANGE_SPEED:
-        return [Leg("speed", speed=(item.param1, item.param2), tag=tag)]
-    if (
-        cmd in mission_protocol.PAYLOAD_COMMANDS
-    ):  # no gimbal or camera here: reached at once (mission_protocol.PAYLOAD_COMMANDS)
-        return [Leg("none", tag=tag)]
-    raise ValueError(f"mission item {item.seq}: command {cmd} has no legs")
-
-
-def mission_takeoff_altitude(items: list[mission_protocol.MissionItem], start: int, home: Home, params) -> float | None:
-    """Altitude above home a mission started on the ground first takes off to, or None when its
-    first item is itself a take-off: MIS_TAKEOFF_ALT, or the first waypoint's altitude if higher
-    (PX4 src/modules/navigator/mission.cpp: a mission started landed takes off first)."""
-    first = items[start]
-    if first.command == mission_protocol.NAV_TAKEOFF:
-        return None
-    alt = params["MIS_TAKEOFF_ALT"]
-    if first.command == mission_protocol.NAV_WAYPOINT:
-        alt = max(alt, float(first.local(home)[2]))
-    return alt
 
 
 def outside_fence(goal, params) -> str | None:
