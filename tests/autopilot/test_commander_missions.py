@@ -240,3 +240,25 @@ def test_hold_pauses_and_mission_mode_resumes():
     g.set_mode(4, 4)
     out = g.run(30, until=lambda g: g.commander.mission_state == M.MISSION_STATE_COMPLETE)
     assert {m.seq for m in of_type(out, "MISSION_ITEM_REACHED")} >= {1, 2}
+
+
+def test_an_item_without_autocontinue_holds_there_until_mission_mode_again():
+    """MISSION_ITEM_INT autocontinue = 0 (common.xml: "continue to next wp automatically" off):
+    reached, the vehicle holds at it with the mission paused at the next item, and goes on only
+    when put in Mission mode again."""
+    g = Gcs()
+    flying(g)
+    items = three()
+    items[0]["autocontinue"] = 0
+    upload(g, items)
+    g.set_mode(4, 4)
+    out = g.run(30, until=lambda g: g.commander.mission_state != M.MISSION_STATE_ACTIVE)
+    assert [m.seq for m in of_type(out, "MISSION_ITEM_REACHED")][:1] == [0]
+    assert g.commander.mode == (4, 3) and g.commander.mission_seq == 1
+    assert g.commander.mission_state == M.MISSION_STATE_PAUSED
+    g.run(3)
+    assert np.allclose(g.position, [2.0, 0.0, 2.5], atol=0.1)  # held at item 0
+    g.set_mode(4, 4)
+    out = g.run(30, until=lambda g: g.commander.mission_state == M.MISSION_STATE_COMPLETE)
+    assert {m.seq for m in of_type(out, "MISSION_ITEM_REACHED")} >= {1, 2}
+    assert np.allclose(g.position, [0.0, 2.0, 2.5], atol=0.1)
