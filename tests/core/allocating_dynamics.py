@@ -28,6 +28,7 @@ def allocating_step(
     force: np.ndarray | None = None,
     torque: np.ndarray | None = None,
     armed: np.ndarray | None = None,
+    wind: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`core.dynamics.step`'s arguments and results, each operation allocating its result."""
     ext = None if force is None and torque is None else _external(force, torque, params, state.dtype)
@@ -43,8 +44,9 @@ def allocating_step(
     s = list(np.ascontiguousarray(state.T))
     w = list(np.ascontiguousarray(rotor.T))
     u = list(np.ascontiguousarray(cmd.T))
+    air = None if wind is None else list(np.ascontiguousarray(np.asarray(wind).T, dtype=state.dtype))
     for _ in range(substeps):
-        s, w = _substep(s, w, u, d, h, ext)
+        s, w = _substep(s, w, u, d, h, ext, air)
     return np.stack(s, axis=1), np.stack(w, axis=1)
 
 
@@ -66,7 +68,7 @@ def _external(force, torque, params, dtype) -> tuple:
     return acc, mom
 
 
-def _substep(s, w, u, d, h: float, ext: tuple | None = None):
+def _substep(s, w, u, d, h: float, ext: tuple | None = None, air: list | None = None):
     x, y, z, vx, vy, vz, phi, th, psi, p, q, r = s
     if d.lag:
         w = [ui + d.decay * (wi - ui) for wi, ui in zip(w, u, strict=True)]
@@ -103,6 +105,19 @@ def _substep(s, w, u, d, h: float, ext: tuple | None = None):
         ax = ax - d.drag_over_m * vx
         ay = ay - d.drag_over_m * vy
         az = az - d.drag_over_m * vz
+    if d.quadratic_drag:  # RotorPy's parasitic drag: D_body = −|v_a|·diag(c)·v_a, v_a = Rᵀ(v − wind)
+        rot = (
+            (cpsi * cth, cpsi * sth * sphi - spsi * cphi, cpsi * sth * cphi + spsi * sphi),
+            (spsi * cth, spsi * sth * sphi + cpsi * cphi, spsi * sth * cphi - cpsi * sphi),
+            (-sth, cth * sphi, cth * cphi),
+        )
+        a = (vx, vy, vz) if air is None else (vx - air[0], vy - air[1], vz - air[2])
+        speed = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+        vb = [rot[0][j] * a[0] + rot[1][j] * a[1] + rot[2][j] * a[2] for j in range(3)]
+        db = [vb[j] * d.c_over_m[j] * speed for j in range(3)]
+        ax = ax - rot[0][0] * db[0] - rot[0][1] * db[1] - rot[0][2] * db[2]
+        ay = ay - rot[1][0] * db[0] - rot[1][1] * db[1] - rot[1][2] * db[2]
+        az = az - rot[2][0] * db[0] - rot[2][1] * db[1] - rot[2][2] * db[2]
     if ext is not None and ext[0] is not None:  # external force / m, world ENU
         ax, ay, az = ax + ext[0][0], ay + ext[0][1], az + ext[0][2]
     hh = 0.5 * h * h

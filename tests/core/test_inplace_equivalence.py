@@ -44,6 +44,8 @@ VEHICLES = {
     "crazyflie": CRAZYFLIE,
     "px4_sih_lag_drag": PX4_SIH_QUADX,
     "idle_speed": dataclasses.replace(SEED_VEHICLE, omega_min=150.0, motor_tau=0.02),
+    # RotorPy's Hummingbird parasitic drag per body axis, with PX4 SIH's linear drag on top
+    "quadratic_drag": dataclasses.replace(PX4_SIH_QUADX, c_dx=0.005, c_dy=0.005, c_dz=0.01),
     "asymmetric": dataclasses.replace(
         SEED_VEHICLE,
         arm=None,
@@ -104,26 +106,29 @@ def test_stepper_and_step_give_the_bits_of_the_allocating_step(vehicle, dtype, s
     w0 = rng.random((n, 4)).astype(dtype)
     command = rng.uniform(-0.2, 1.2, (n, 4)).astype(dtype)
     stepper = dynamics.Stepper(n, 4, dtype)
-    for force, torque in ((None, None), (rng.normal(0, 1, (n, 3)), rng.normal(0, 0.01, (n, 3)))):
+    pushed = (rng.normal(0, 1, (n, 3)), rng.normal(0, 0.01, (n, 3)), rng.normal(0, 4, (n, 3)))
+    for force, torque, wind in ((None, None, None), pushed):
         force = None if force is None else force.astype(dtype)
         torque = None if torque is None else torque.astype(dtype)
         for armed in (None, np.arange(n) % 3 != 1):
             args = (s0, w0, command, params, 0.01, substeps)
-            want_s, want_w = allocating_step(*args, force=force, torque=torque, armed=armed)
-            got_s, got_w = dynamics.step(*args, force=force, torque=torque, armed=armed)
+            kw = dict(force=force, torque=torque, armed=armed, wind=wind)
+            want_s, want_w = allocating_step(*args, **kw)
+            got_s, got_w = dynamics.step(*args, **kw)
             assert same(got_s, want_s) and same(got_w, want_w)
             s, w, u = np.ascontiguousarray(s0.T), np.ascontiguousarray(w0.T), np.ascontiguousarray(command.T)
-            stepper.step(s, w, u, params, 0.01, substeps, force=force, torque=torque, armed=armed)
+            stepper.step(s, w, u, params, 0.01, substeps, **kw)
             assert same(s.T, want_s) and same(w.T, want_w)
 
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: np.dtype(d).name)
 @pytest.mark.parametrize("substeps", [1, 3])
-def test_stepper_with_the_observations_trigonometry_gives_the_bits_of_the_allocating_step(dtype, substeps):
+@pytest.mark.parametrize("vehicle", ["seed", "quadratic_drag"])
+def test_stepper_with_the_observations_trigonometry_gives_the_bits_of_the_allocating_step(dtype, substeps, vehicle):
     """The sines, cosines and thrust axis the observation computed for the state are the ones the
     dynamics computes first (QuadBatch hands them over); the later substeps compute their own."""
     n = 41
-    params = ParamBatch.from_preset(SEED_VEHICLE, n, dtype=np.dtype(dtype))
+    params = ParamBatch.from_preset(VEHICLES[vehicle], n, dtype=np.dtype(dtype))
     s0 = states(n, dtype, seed=2)
     w0 = np.full((n, 4), 0.5, dtype)
     command = np.random.default_rng(3).uniform(0, 1, (n, 4)).astype(dtype)

@@ -145,7 +145,8 @@ def test_the_shipped_px4_sih_file_holds_px4_and_rotorpy_numbers():
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
 def test_written_file_reads_back_bit_for_bit(name, tmp_path):
-    for v in (PRESETS[name], dataclasses.replace(PRESETS[name], name="x1", mass=0.9, motor_tau=0.03, drag=0.2)):
+    edited = dict(name="x1", mass=0.9, motor_tau=0.03, drag=0.2, c_dx=0.005, c_dy=0.007, c_dz=0.01)
+    for v in (PRESETS[name], dataclasses.replace(PRESETS[name], **edited)):
         path = tmp_path / "v.toml"
         path.write_text(vehicle_to_toml(v), encoding="utf-8")
         assert load_vehicle_file(path) == v
@@ -174,6 +175,10 @@ BAD = {
     "idle speed at full speed": (_variant(omega_min="2400.0"), "omega_min", "below omega_max"),
     "anisotropic drag": (_variant(drag="[0.1, 0.2, 0.1]"), "drag", "equal"),
     "drag of two": (_variant(drag="[0.1, 0.1]"), "drag", "three"),
+    "quadratic drag of two": (_variant(drag_quadratic="[0.1, 0.1]"), "drag_quadratic", "three numbers"),
+    "quadratic drag a number": (_variant(drag_quadratic="0.1"), "drag_quadratic", "three numbers"),
+    "negative quadratic drag": (_variant(drag_quadratic="[0.1, -0.1, 0.1]"), "drag_quadratic", ">= 0"),
+    "quadratic drag a string": (_variant(drag_quadratic='[0.1, "x", 0.1]'), "drag_quadratic", "expected a number"),
     "unknown key": (_variant(arm="0.1"), "arm", "unknown key"),
     "bad name": (_variant(name='"two words"'), "name", "letters"),
     "name a number": (_variant(name="3"), "name", "letters"),
@@ -222,3 +227,12 @@ def test_an_unknown_name_is_not_a_file_error():
         resolve_vehicle("hexacopter")
     with pytest.raises(VehicleFileError, match=r"nope\.toml: cannot read"):
         resolve_vehicle("nope.toml")
+
+
+def test_rotorpys_parasitic_drag_reads_as_it_is_written():
+    """drag_quadratic takes RotorPy's c_Dx, c_Dy, c_Dz as its airframe modules give them."""
+    from rotorpy.vehicles.hummingbird_params import quad_params as rp
+
+    v = parse_vehicle(_variant(drag_quadratic=f"[{rp['c_Dx']}, {rp['c_Dy']}, {rp['c_Dz']}]").encode())
+    assert (v.c_dx, v.c_dy, v.c_dz) == (rp["c_Dx"], rp["c_Dy"], rp["c_Dz"])
+    assert "drag_quadratic" not in vehicle_to_toml(parse_vehicle(_variant().encode()))  # none: not written

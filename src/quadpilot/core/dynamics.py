@@ -41,6 +41,13 @@ rotational equation with the gyroscopic term ω × (Iω), forward in time; Euler
 the mid-step rates (exact for a constant torque about one axis); position with the constant-
 acceleration formula p + h·v + h²/2·a (exact in free fall). Euler angles are singular at
 pitch ±90°; the environments terminate at 60°.
+
+Drag, two laws, each zero unless the vehicle sets it: linear in the world frame, −drag·v (PX4
+SIH's SIH_KDV law; a caller with wind adds drag·wind as its external force), and quadratic per body
+axis, RotorPy's parasitic drag D = −|v_a|·diag(c_dx, c_dy, c_dz)·v_a on the body airspeed
+v_a = Rᵀ(v − wind) (rotorpy/vehicles/multirotor.py, `compute_body_wrench`), with R and v at the
+start of the substep as for the thrust; `wind` (N, 3) world ENU gives the air's velocity (None:
+still air). A vehicle without quadratic drag steps with the same operations as before it existed.
 """
 
 from __future__ import annotations
@@ -49,6 +56,7 @@ import math
 
 import numpy as np
 
+from .mixer import wrench_function, wrench_into_function
 from .params import NUM_MOTORS as NUM_MOTORS  # re-exported: the rotor count the contract carries
 from .params import ParamBatch
 
@@ -97,6 +105,7 @@ def step(
     force: np.ndarray | None = None,
     torque: np.ndarray | None = None,
     armed: np.ndarray | None = None,
+    wind: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Advance N drones by `dt` with the motor command held; returns new (state, rotor).
 
@@ -111,6 +120,9 @@ def step(
     armed (N,) bool: False turns a drone's motors off (commanded speed 0, see the module docstring);
     None (the default) is every drone armed.
 
+    wind (N, 3), m/s world ENU: the air's velocity, which the quadratic drag acts on (module
+    docstring); None: still air. (The linear drag takes wind as the external force drag·wind.)
+
     The arithmetic is `Stepper`'s, the one implementation of the model: the inputs are copied to
     rows, advanced in place and copied out.
     """
@@ -122,7 +134,8 @@ def step(
     s = np.array(state.T, order="C")
     w = np.array(rotor.T, dtype, order="C")
     u = np.array(command.T, dtype, order="C")
-    _stepper(params.n, params.n_rotors, dtype).step(s, w, u, params, dt, substeps, force, torque, armed=armed)
+    stepper = _stepper(params.n, params.n_rotors, dtype)
+    stepper.step(s, w, u, params, dt, substeps, force, torque, armed=armed, wind=wind)
     return np.ascontiguousarray(s.T), np.ascontiguousarray(w.T)
 
 
@@ -160,7 +173,7 @@ class _Derived:
         self.f_max = c(p.k_f * p.omega_max**2)  # N per rotor at command 1
         self.inv_m = c(1.0 / p.mass)
         # τ_x = arm·Σ y_i·F_i, τ_y = −arm·Σ x_i·F_i, τ_z = −k_m·Σ spin_i·F_i (module docstring)
-        self.wrench = _wrench_function(p.layout, (p.arm, p.arm, p.k_m), c)
+        self.wrench = wrench_function(p.layout, (p.arm, p.arm, p.k_m), c)
         self.inv_ixx, self.inv_iyy, self.inv_izz = c(1 / p.ixx), c(1 / p.iyy), c(1 / p.izz)
         self.izz_iyy, self.ixx_izz, self.iyy_ixx = c(p.izz - p.iyy), c(p.ixx - p.izz), c(p.iyy - p.ixx)
         self.g = np.dtype(dtype).type(p.gravity)
@@ -176,87 +189,9 @@ class _Derived:
         self.drag = bool(np.any(p.drag > 0))
         if self.drag:
             self.drag_over_m = c(p.drag / p.mass)
-
-
-def _wrench_function(layout: tuple, scales: tuple, cast):
-    """f ↦ (thrust, τx, τy, τz) for a batch's layout (`ParamBatch.layout`: x/arm, y/arm, spin in
-    FLU per rotor), with τx = arm·Σ y_i·F_i, τy = −arm·Σ x_i·F_i, τz = −k_m·Σ spin_i·F_i (module
-    docstring); `scales` the per-drone (arm, arm, k_m)."""
-    make, factors, coefs, terms = _wrench_maker(layout)
-    consts = [cast(scale / (1.0 / g)) for scale, g in zip(scales, factors, strict=True) if g]
-    ks = [cast(k)[()] for k in coefs]
-    fn = make(*consts, *ks)
-    fn.source = make.source
-    # the same rows with the same constants, for `_wrench_into_function` (the in-place step)
-    bound = iter(consts)
-    fn.rows = tuple(
-        None if row is None else (next(bound), tuple((neg, None if j is None else ks[j], i) for neg, j, i in row))
-        for row in terms
-    )
-    return fn
-
-
-_WRENCH_MAKERS: dict = {}
-_MAX_WRENCH_MAKERS = 64  # layouts compiled per process; a batch has one, a run a handful
-
-
-def _wrench_maker(layout: tuple):
-    """(make, row factors g, other coefficients, row terms) for a layout, compiled once per layout.
-
-    The mixer is written out as one expression per row and compiled, so that stepping costs what a
-    hand-written mixer costs: each row's largest |coefficient| g goes into a per-drone factor, so
-    the rows of a symmetric frame (every |coefficient| equal or 0: quad-X, "+") are sums and
-    differences of the rotor thrusts times one factor, exactly the quad-X rows the ENPM 667 project writes out;
-    any other coefficient is one more multiplication. `make(a0, a1, a2, k...)` binds the per-drone
-    factors (arm·g, k_m·g) and coefficients of a batch without compiling again (domain randomisation
-    makes a new batch at every reset). The source holds only rotor indices, signs and names made
-    here, never text from a vehicle file. The row terms, (negative, coefficient index or None,
-    rotor index) in the source's order, let `_wrench_into_function` write the same expressions in place."""
-    hit = _WRENCH_MAKERS.get(layout)
-    if hit is not None:
-        return hit
-    lay = np.asarray(layout, dtype=np.float64)
-    factors, coefs, params, rows = [], [], [], []
-    terms = []  # per row: None (no torque) or its terms (negative, coefficient index or None, rotor)
-    for r, coef in enumerate((lay[:, 1], -lay[:, 0], -lay[:, 2])):
-        g = float(np.abs(coef).max())
-        factors.append(g)
-        if g == 0.0:
-            rows.append("0.0")  # no rotor makes this torque (VehicleParams refuses such layouts)
-            terms.append(None)
-            continue
-        params.append(f"a{r}")
-        expr = ""
-        row_terms = []
-        for i, ci in enumerate(coef):
-            k = float(ci / g)
-            if k == 0.0:
-                continue
-            if k in (1.0, -1.0):
-                term = f"f[{i}]"
-                row_terms.append((k < 0, None, i))
-            else:
-                coefs.append(abs(k))
-                term = f"k{len(coefs) - 1} * f[{i}]"
-                row_terms.append((k < 0, len(coefs) - 1, i))
-            expr += (" - " if k < 0 else " + ") + term if expr else ("-" if k < 0 else "") + term
-        rows.append(f"a{r} * ({expr})")
-        terms.append(tuple(row_terms))
-    params += [f"k{j}" for j in range(len(coefs))]
-    thrust = " + ".join(f"f[{i}]" for i in range(len(lay)))
-    src = (
-        f"def make({', '.join(params)}):\n"
-        f"    def wrench(f):\n        return {thrust}, {rows[0]}, {rows[1]}, {rows[2]}\n"
-        "    return wrench\n"
-    )
-    namespace: dict = {}
-    exec(compile(src, "<core.dynamics wrench>", "exec"), namespace)  # the source is built above, from numbers
-    make = namespace["make"]
-    make.source = src  # what was compiled, for a reader (and the tests)
-    if len(_WRENCH_MAKERS) >= _MAX_WRENCH_MAKERS:
-        _WRENCH_MAKERS.clear()
-    _WRENCH_MAKERS[layout] = hit = (make, tuple(factors), tuple(coefs), tuple(terms))
-    return hit
+        self.quadratic_drag = bool(np.any(p.c_dx > 0) or np.any(p.c_dy > 0) or np.any(p.c_dz > 0))
+        if self.quadratic_drag:  # per body axis, over the mass: (3, N)
+            self.c_over_m = c(np.stack([p.c_dx / p.mass, p.c_dy / p.mass, p.c_dz / p.mass]))
 
 
 class Stepper:
@@ -318,6 +253,7 @@ class Stepper:
         torque: np.ndarray | None = None,
         trig: tuple | None = None,
         armed: np.ndarray | None = None,
+        wind: np.ndarray | None = None,
     ) -> None:
         """Advance N drones by `dt` in place: s (12, N) state rows (`core.state` order), w (M, N)
         rotor rows; u (M, N) commanded speeds, clipped to [ω_min/ω_max, 1] as `step` clips them, in
@@ -328,7 +264,7 @@ class Stepper:
         `frames.euler_to_rotmat_rows` computes them (the same operations as `_substep`'s
         acceleration terms), used for the first substep instead of computing them again.
         armed: None (every drone armed), or (N,) bool: False turns a drone's motors off, its
-        command 0 after the clip (`step`'s `armed`)."""
+        command 0 after the clip (`step`'s `armed`). wind: None, or (N, 3) m/s world ENU, `step`'s."""
         n, m = self.n, self.m
         if s.shape != (STATE_DIM, n) or w.shape != (m, n) or u.shape != (m, n):
             raise ValueError(
@@ -359,6 +295,13 @@ class Stepper:
                 raise ValueError(f"torque must have shape ({n}, 3) (N·m, body FLU), got {torque.shape}")
             mom = self.mom_ext
             np.copyto(mom, torque.T, casting="unsafe")
+        air = None
+        if wind is not None and d.quadratic_drag:  # only the quadratic drag reads the air's velocity
+            wind = np.asarray(wind)
+            if wind.shape != (n, 3):
+                raise ValueError(f"wind must have shape ({n}, 3) (m/s, world ENU), got {wind.shape}")
+            air = self._scratch("wind", 3)
+            np.copyto(air, wind.T, casting="unsafe")
         clipped = u if d.lag else w  # without a lag the rotor speed is the clipped command (w = u)
         _clip(u, k.u_min, 1.0, clipped)
         if armed is not None:  # motors off command 0, below any idle speed (module docstring)
@@ -367,9 +310,66 @@ class Stepper:
                 raise ValueError(f"armed must have shape ({n},), got {armed.shape}")
             np.copyto(clipped, 0.0, where=~armed.astype(bool))
         for i in range(substeps):
-            self._substep(s, w, u, d, k, acc, mom, trig if i == 0 else None)
+            self._substep(s, w, u, d, k, acc, mom, trig if i == 0 else None, air)
 
-    def _substep(self, s, w, u, d: _Derived, k: _StepperConstants, acc, mom, trig) -> None:
+    def _scratch(self, name: str, k: int) -> np.ndarray:
+        """Rows (k, N) made on first use, for the terms most batches never step (quadratic drag)."""
+        buf = self.__dict__.get("_buf_" + name)
+        if buf is None:
+            buf = self.__dict__["_buf_" + name] = np.empty((k, self.n), self.dtype)
+        return buf
+
+    def _quadratic_drag(self, x, vel, air, sin, cos, za, k: _StepperConstants, t1) -> None:
+        """x += R·(−|v_a|·c/m ∘ v_a) with v_a = Rᵀ(v − wind): RotorPy's parasitic drag over the mass
+        (module docstring), R the body → world rotation of the Euler angles whose sines and cosines
+        are `sin`, `cos` and whose third column is `za`."""
+        mul, add, sub = np.multiply, np.add, np.subtract
+        (sphi, sth, spsi), (cphi, cth, cpsi) = sin, cos
+        rot = self._scratch("rot", 9)  # R by rows: R00 R01 R02 R10 R11 R12 R20 R21 R22
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
+        mul(cpsi, cth, r00)  # R00 = cψ·cθ
+        mul(cpsi, sth, r01)  # R01 = cψ·sθ·sφ − sψ·cφ
+        mul(r01, sphi, r01)
+        mul(spsi, cphi, t1)
+        sub(r01, t1, r01)
+        mul(spsi, cth, r10)  # R10 = sψ·cθ
+        mul(spsi, sth, r11)  # R11 = sψ·sθ·sφ + cψ·cφ
+        mul(r11, sphi, r11)
+        mul(cpsi, cphi, t1)
+        add(r11, t1, r11)
+        np.negative(sth, r20)  # R20 = −sθ
+        mul(cth, sphi, r21)  # R21 = cθ·sφ
+        np.copyto(r02, za[0])
+        np.copyto(r12, za[1])
+        np.copyto(r22, za[2])
+        a = self._scratch("air", 3)  # v − wind
+        if air is None:
+            np.copyto(a, vel)
+        else:
+            sub(vel, air, a)
+        speed = self._scratch("speed", 1)[0]  # |v_a| = |v − wind| (a rotation keeps the length)
+        mul(a[0], a[0], speed)
+        mul(a[1], a[1], t1)
+        add(speed, t1, speed)
+        mul(a[2], a[2], t1)
+        add(speed, t1, speed)
+        np.sqrt(speed, speed)
+        vb = self._scratch("body_air", 3)  # v_a in the body frame: Rᵀ(v − wind)
+        for j in range(3):
+            mul(rot[j], a[0], vb[j])
+            mul(rot[3 + j], a[1], t1)
+            add(vb[j], t1, vb[j])
+            mul(rot[6 + j], a[2], t1)
+            add(vb[j], t1, vb[j])
+        for j in range(3):  # D/m in the body frame: −|v_a|·(c_j/m)·v_a,j
+            mul(vb[j], k.c_over_m[j], vb[j])
+            mul(vb[j], speed, vb[j])
+        for i in range(3):  # x_i −= Σ_j R_ij·|v_a|·(c_j/m)·v_a,j
+            for j in range(3):
+                mul(rot[3 * i + j], vb[j], t1)
+                sub(x[i], t1, x[i])
+
+    def _substep(self, s, w, u, d: _Derived, k: _StepperConstants, acc, mom, trig, air=None) -> None:
         """`_substep` in place; each comment gives the line of `_substep` the calls below it compute."""
         mul, add, sub = np.multiply, np.add, np.subtract
         pos, vel, att, rates, psi, p, q, r = self._views(s)
@@ -452,6 +452,9 @@ class Stepper:
         if d.drag:  # ax = ax − drag_over_m·vx, ...
             mul(k.drag_over_m, vel, blk)
             sub(x, blk, x)
+        if d.quadratic_drag:
+            trig_rows = (self.sin, self.cos) if trig is None else trig[:2]
+            self._quadratic_drag(x, vel, air, *trig_rows, za, k, t1)
         if acc is not None:  # ax = ax + force_x/m, ...
             add(x, acc, x)
         mul(k.h, vel, blk)  # x1 = x + h·vx + hh·ax, ...
@@ -476,66 +479,18 @@ class _StepperConstants:
         self.u_min = d.u_min if np.isscalar(d.u_min) else rows(d.u_min[:, 0], m)
         self.decay = rows(d.decay, m) if d.lag else None
         self.drag_over_m = rows(d.drag_over_m, 3) if d.drag else None
+        self.c_over_m = d.c_over_m if d.quadratic_drag else None
         self.izz_iyy, self.ixx_izz, self.iyy_ixx = d.izz_iyy, d.ixx_izz, d.iyy_ixx
         self.inv_inertia = np.stack([d.inv_ixx, d.inv_iyy, d.inv_izz])
         self.h, self.half, self.hh = t(h), t(0.5), t(0.5 * h * h)
         self.pi, self.two_pi, self.inv_two_pi = t(np.pi), t(_TWO_PI), t(_INV_TWO_PI)
-        self.wrench_into = _wrench_into_function(d.wrench.rows, m)
+        self.wrench_into = wrench_into_function(d.wrench.rows, m)
 
 
 try:  # the ufunc np.clip calls, without np.clip's dispatch (a microsecond a call); the same values
     from numpy._core.umath import clip as _clip
 except ImportError:  # pragma: no cover - a NumPy that moved it
     _clip = np.clip
-
-
-def _wrench_into_function(rows, m: int):
-    """wrench_into(f_rows, out_rows, tmp): the wrench function's expressions (`_wrench_maker`) for
-    rotor thrust rows f_rows (M of (N,)), evaluated into out_rows (thrust, τx, τy, τz) with the same
-    operations in the same order, tmp an (N,) scratch row. `rows` is the wrench function's `rows`
-    (per torque row: None, or the per-drone factor and the terms). Written out as straight-line
-    code like the allocating mixer, so stepping pays no loop over terms; the source holds only
-    indices and names made here."""
-    consts: list = []
-
-    def const(value) -> str:
-        consts.append(value)
-        return f"c{len(consts) - 1}"
-
-    body = [f"    f{i} = f[{i}]" for i in range(m)] + ["    o0, o1, o2, o3 = out"]
-    body.append("    copyto(o0, f0)" if m == 1 else "    add(f0, f1, o0)")
-    body += [f"    add(o0, f{i}, o0)" for i in range(2, m)]
-    for r, row in enumerate(rows, start=1):
-        o = f"o{r}"
-        if row is None:  # "0.0"
-            body.append(f"    {o}.fill(0.0)")
-            continue
-        factor, terms = row
-        for j, (neg, k, i) in enumerate(terms):
-            if j == 0:  # "-k * f[i]" is (−k)·f[i]; "-f[i]" is −f[i]
-                if k is None:
-                    body.append(f"    negative(f{i}, {o})" if neg else f"    copyto({o}, f{i})")
-                else:
-                    body.append(f"    multiply({const(-k if neg else k)}, f{i}, {o})")
-            elif k is None:
-                body.append(f"    {'subtract' if neg else 'add'}({o}, f{i}, {o})")
-            else:
-                body.append(f"    multiply({const(k)}, f{i}, tmp)")
-                body.append(f"    {'subtract' if neg else 'add'}({o}, tmp, {o})")
-        body.append(f"    multiply({const(factor)}, {o}, {o})")  # a_r·(...)
-    src = "def wrench_into(f, out, tmp):\n" + "\n".join(body) + "\n"
-    namespace = {
-        "add": np.add,
-        "subtract": np.subtract,
-        "multiply": np.multiply,
-        "negative": np.negative,
-        "copyto": np.copyto,
-        **{f"c{i}": c for i, c in enumerate(consts)},
-    }
-    exec(compile(src, "<core.dynamics wrench_into>", "exec"), namespace)  # built above from indices and names
-    fn = namespace["wrench_into"]
-    fn.source = src
-    return fn
 
 
 def hover_command(params) -> np.ndarray | float:

@@ -164,6 +164,14 @@ class VehicleParams:
     Rotors, so that `dataclasses.asdict` gives what JSON reads back (a config.json or ONNX metadata
     compares equal to it); never change it in place. None: PX4's quad-X of `arm` (`quad_x`), the
     layout of every vehicle saved without a list."""
+    c_dx: float = 0.0
+    """N/(m/s)², quadratic parasitic drag along body x (forward), RotorPy's c_Dx: the body-frame
+    drag force is D = −|v_a|·diag(c_dx, c_dy, c_dz)·v_a for the airspeed v_a = Rᵀ(v − wind)
+    (rotorpy/vehicles/multirotor.py, `compute_body_wrench`). 0 (and c_dy, c_dz 0): none."""
+    c_dy: float = 0.0
+    """N/(m/s)², the same along body y (left)."""
+    c_dz: float = 0.0
+    """N/(m/s)², the same along body z (up)."""
 
     def __post_init__(self) -> None:
         """Every field is checked where a VehicleParams is made (a preset, a scaled copy, a vehicle read
@@ -360,6 +368,9 @@ _VEHICLE_LIMITS = {
     "drag": (0.0, ">= 0"),
     "gravity": (0.0, "> 0"),
     "omega_min": (0.0, ">= 0"),
+    "c_dx": (0.0, ">= 0"),
+    "c_dy": (0.0, ">= 0"),
+    "c_dz": (0.0, ">= 0"),
 }
 
 # The seed vehicle (the ENPM 667 project after Pi et al. 2020): mass, arm and inertia as published.
@@ -431,7 +442,22 @@ def get_preset(name: str) -> VehicleParams:
         raise ValueError(f"unknown vehicle preset {name!r}; known presets: {sorted(PRESETS)}") from None
 
 
-_BATCH_FIELDS = ("mass", "ixx", "iyy", "izz", "k_f", "k_m", "arm", "omega_max", "motor_tau", "drag", "omega_min")
+_BATCH_FIELDS = (
+    "mass",
+    "ixx",
+    "iyy",
+    "izz",
+    "k_f",
+    "k_m",
+    "arm",
+    "omega_max",
+    "motor_tau",
+    "drag",
+    "omega_min",
+    "c_dx",
+    "c_dy",
+    "c_dz",
+)
 
 
 def unit_layout(vehicle: VehicleParams) -> tuple[tuple[float, float, float], ...]:
@@ -490,10 +516,15 @@ class ParamBatch:
     layout: tuple[tuple[float, float, float], ...] = QUAD_X_UNIT
     """Rotors in output order: (x/arm, y/arm, spin sign) in body FLU, spin +1 counter-clockwise
     seen from above (`unit_layout`). Default: PX4's quad-X."""
+    c_dx: np.ndarray | None = None
+    """N/(m/s)² per drone, quadratic body drag (`VehicleParams.c_dx`); None: zeros, as c_dy, c_dz."""
+    c_dy: np.ndarray | None = None
+    c_dz: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        if self.omega_min is None:
-            object.__setattr__(self, "omega_min", np.zeros_like(np.asarray(self.mass)))
+        for k in ("omega_min", "c_dx", "c_dy", "c_dz"):
+            if getattr(self, k) is None:
+                object.__setattr__(self, k, np.zeros_like(np.asarray(self.mass)))
         for k in _BATCH_FIELDS:
             a = np.array(getattr(self, k), copy=True)
             a.flags.writeable = False  # see the class docstring: the derived-constant cache

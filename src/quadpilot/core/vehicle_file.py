@@ -14,6 +14,7 @@ works the same way. The schema takes the numbers as RotorPy's and PX4's paramete
     omega_min = 0.0            # rad/s, optional: idle speed of an armed motor (see below)
     motor_tau = 0.05           # s, first-order rotor lag, optional (0 = none)
     drag = 0.0                 # N s/m, optional: linear drag, see below
+    drag_quadratic = [0.005, 0.005, 0.01]  # N/(m/s)^2 along body x, y, z, optional: RotorPy's c_Dx, c_Dy, c_Dz
     [[rotor]]                  # one table per rotor, in actuator output order (output 1 first)
     x = 0.17                   # m, forward of the centre of mass (body FRD)
     y = 0.17                   # m, to the right
@@ -35,16 +36,16 @@ Rotor speed: omega = command * omega_max, clipped to [omega_min, omega_max] as R
 omega_min > 0 an armed motor idles at omega_min even at command 0; motors off (disarmed) stop the
 rotors (`core.dynamics`, module docstring). omega_min must be below omega_max.
 
-Drag: the model's is linear and isotropic, F = drag · (v_wind − v) in N with v in m/s (world frame,
-the same in every frame because it is isotropic): a scalar or three equal values [dx, dy, dz]. PX4's
-SIH uses this law (SIH_KDV, N/(m/s), `D = -KDV*V`; default 1.0). RotorPy's `c_Dx, c_Dy, c_Dz` are
-quadratic parasitic-drag coefficients in the body frame, N/(m/s)^2, F_i = −c_Di·|v|·v_i
-(rotorpy/vehicles/multirotor.py, `compute_body_wrench`), a different law: do not paste them as they
-are. The linear coefficient that gives the same force at a speed v_ref is c_D·v_ref (N s/m); a file
-that maps RotorPy's says which v_ref it took. Neither law is exact for the other away from v_ref
-(the linear one over-damps below it and under-damps above it); near hover both forces are
-negligible beside the thrust. RotorPy's rotor drag (k_d, k_z), translational lift (k_h) and blade
-flapping (k_flap) have no counterpart here.
+Drag, two laws, both optional and zero by default (`core.dynamics`):
+- `drag`: linear and isotropic, F = drag · (v_wind − v) in N with v in m/s (world frame, the same in
+  every frame because it is isotropic): a scalar or three equal values [dx, dy, dz]. PX4's SIH uses
+  this law (SIH_KDV, N/(m/s), `D = -KDV*V`; default 1.0).
+- `drag_quadratic = [c_Dx, c_Dy, c_Dz]`: RotorPy's parasitic drag, quadratic and per body axis,
+  N/(m/s)^2: D = −|v_a|·diag(c_Dx, c_Dy, c_Dz)·v_a on the body airspeed v_a = Rᵀ(v − v_wind)
+  (rotorpy/vehicles/multirotor.py, `compute_body_wrench`); RotorPy's airframe modules give the
+  three numbers as they are (the coefficients are magnitudes, the same in FRD and FLU).
+A file may give both; they add. RotorPy's rotor drag (k_d, k_z), translational lift (k_h) and blade
+flapping (k_flap) have no counterpart here yet.
 
 k_m and arm are derived, and rounded to 12 significant digits: a file written from the decimal
 values of a `VehicleParams` (`vehicle_to_toml`) then reads back to the same floats, bit for bit.
@@ -75,10 +76,18 @@ MAX_FILE_BYTES = 64 * 1024
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 
 _REQUIRED = ("name", "mass", "ixx", "iyy", "izz", "k_thrust", "k_torque", "omega_max", "rotor")
-_OPTIONAL = ("omega_min", "motor_tau", "drag")
+_OPTIONAL = ("omega_min", "motor_tau", "drag", "drag_quadratic")
 _ROTOR_KEYS = ("x", "y", "spin")
 
-_FIELD_KEY = {"k_f": "k_thrust", "k_m": "k_torque", "arm": "rotor", "rotors": "rotor"}
+_FIELD_KEY = {
+    "k_f": "k_thrust",
+    "k_m": "k_torque",
+    "arm": "rotor",
+    "rotors": "rotor",
+    "c_dx": "drag_quadratic",
+    "c_dy": "drag_quadratic",
+    "c_dz": "drag_quadratic",
+}
 """VehicleParams field → the file key that gives it (the others are spelt alike)."""
 
 
@@ -174,6 +183,7 @@ def _from_table(doc: dict, path) -> VehicleParams:
     omega_min = number("omega_min", ">= 0", 0.0)
     motor_tau = number("motor_tau", ">= 0", 0.0)
     drag = _drag(doc.get("drag", 0.0), path)
+    c_dx, c_dy, c_dz = _drag_quadratic(doc.get("drag_quadratic", [0.0, 0.0, 0.0]), path)
     rotors = _rotors(doc["rotor"], path)
     arm = _round12(sum(math.hypot(r.x, r.y) for r in rotors) / len(rotors))
     try:
@@ -191,6 +201,9 @@ def _from_table(doc: dict, path) -> VehicleParams:
             drag=drag,
             omega_min=omega_min,
             rotors=rotors,
+            c_dx=c_dx,
+            c_dy=c_dy,
+            c_dz=c_dz,
         )
     except VehicleParamsError as e:  # the layout, omega_min ≥ omega_max, a derived value out of range
         # VehicleParams says "vehicle 'name': field...: reason"; the file's message names the file's key
@@ -226,6 +239,15 @@ def _drag(v, path) -> float:
             )
         return values[0]
     return _number(v, path, "drag", ">= 0")
+
+
+def _drag_quadratic(v, path) -> tuple[float, float, float]:
+    key = "drag_quadratic"
+    if not isinstance(v, list) or len(v) != 3:
+        found = f"a list of {len(v)}" if isinstance(v, list) else _type(v)
+        raise VehicleFileError(path, key, f"expected three numbers [c_Dx, c_Dy, c_Dz] in N/(m/s)^2, found {found}")
+    cx, cy, cz = (_number(x, path, key, ">= 0") for x in v)
+    return cx, cy, cz
 
 
 def _rotors(rotors, path) -> tuple[Rotor, ...]:
@@ -305,6 +327,8 @@ def vehicle_to_toml(v: VehicleParams) -> str:
         f"motor_tau = {v.motor_tau!r}  # s",
         f"drag = {v.drag!r}  # N s/m, linear, isotropic",
     ]
+    if v.c_dx or v.c_dy or v.c_dz:
+        lines.append(f"drag_quadratic = [{v.c_dx!r}, {v.c_dy!r}, {v.c_dz!r}]  # N/(m/s)^2 along body x, y, z")
     for i, r in enumerate(v.rotors, start=1):
         lines += ["", f"[[rotor]]  # output {i}", f"x = {r.x!r}  # m, forward (FRD)", f"y = {r.y!r}  # m, right"]
         lines.append(f'spin = "{r.spin}"')

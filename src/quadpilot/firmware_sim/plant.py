@@ -88,6 +88,9 @@ class Plant:
         # drag·wind part as its external force, as the training environments' wind does.
         self._wind_force = vehicle.drag * self.wind  # N, world ENU
         self._windy = bool(self._wind_force.any())
+        # the quadratic body drag (`VehicleParams.c_dx` ...) acts on the airspeed: core.dynamics
+        # takes the wind itself for it
+        self._quadratic = bool(vehicle.c_dx or vehicle.c_dy or vehicle.c_dz)
         # Gusts: each axis a first-order Gauss-Markov (Ornstein-Uhlenbeck) velocity with standard
         # deviation gust_std and correlation time gust_tau_s, discretised exactly per step (the
         # first-order shaping filter behind the Dryden model's low-frequency part, MIL-F-8785C).
@@ -155,6 +158,7 @@ class Plant:
                 self.dt,
                 force=None if force is None else force[None],
                 armed=None if armed else _MOTORS_OFF,
+                wind=self.air[None] if self._quadratic else None,
             )
             out = s[0], w[0]
         self.state, self.rotor = out
@@ -197,6 +201,8 @@ class Plant:
         v = self.vehicle
         thrust_up = euler_to_rotmat(*self.state[ATT])[:, 2] * (self.thrust_n / v.mass)
         net = thrust_up + v.drag * (self.air - self.state[VEL]) / v.mass
+        if self._quadratic:
+            net = net + sensors.rotation(self.state) @ sensors.quadratic_drag_flu(self.state, v, self.air)
         net[2] -= v.gravity
         if net[2] >= 0.0:
             return None
@@ -226,9 +232,12 @@ class Plant:
         vehicle is on it: (0, 0, +g) at rest there, as a real IMU reads). `rot`: the state's body →
         world rotation, if known (`sensors.rotation`)."""
         v = self.vehicle
-        if not v.drag and self._contact_acc is None:  # `sensors.specific_force_flu` with nothing but thrust
+        if not v.drag and not self._quadratic and self._contact_acc is None:  # nothing but thrust
             return np.array([0.0, 0.0, self.thrust_n / v.mass])
-        return sensors.specific_force_flu(self.state, self.thrust_n, v.mass, v.drag, self.air, self._contact_acc, rot)
+        f = sensors.specific_force_flu(self.state, self.thrust_n, v.mass, v.drag, self.air, self._contact_acc, rot)
+        if self._quadratic:
+            f += sensors.quadratic_drag_flu(self.state, v, self.air, rot)
+        return f
 
 
 def resting_on_ground(state: np.ndarray) -> bool:

@@ -120,6 +120,15 @@ def specific_force_flu(
     return f
 
 
+def quadratic_drag_flu(state: np.ndarray, vehicle, wind_enu, rot=None) -> np.ndarray:
+    """m/s², body FLU: RotorPy's parasitic drag over the mass, −|v_a|·diag(c_dx, c_dy, c_dz)·v_a / m
+    on the body airspeed v_a = Rᵀ(v − wind) (`core.dynamics`, module docstring); a force on the
+    airframe, so the accelerometer measures it. `rot`: the state's R, if known."""
+    air = world_to_body(state, state[VEL] - np.asarray(wind_enu, np.float64), rot)
+    c = np.array([vehicle.c_dx, vehicle.c_dy, vehicle.c_dz])
+    return -float(np.linalg.norm(air)) * c * air / vehicle.mass
+
+
 class Reading(NamedTuple):
     """What the sensors measure at one step (body FLU, SI; the barometer in hPa at `alt_m` MSL)."""
 

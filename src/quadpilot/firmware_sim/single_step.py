@@ -38,7 +38,7 @@ TRIG_AGREES = scalar_trig_agrees()
 
 def _mixer_rows(layout, scales) -> tuple:
     """Per torque row (τx, τy, τz): (factor, ((rotor, sign, coefficient or None), ...)), the rows
-    `core.dynamics._wrench_maker` compiles: τx = arm·Σ y_i·F_i, τy = −arm·Σ x_i·F_i, τz =
+    `core.mixer.wrench_maker` compiles: τx = arm·Σ y_i·F_i, τy = −arm·Σ x_i·F_i, τz =
     −k_m·Σ spin_i·F_i, each row's largest |coefficient| g folded into its factor (scale / (1/g))
     and the rest left as ±F_i (coefficient ±1) or ±k·F_i."""
     lay = np.asarray(layout, dtype=np.float64)
@@ -103,6 +103,9 @@ class SingleStep:
             self.decay = one(np.where(tau > 0, np.exp(-h / np.where(tau > 0, tau, 1.0)), 0.0))
         self.drag = bool(np.any(p.drag > 0))
         self.drag_over_m = one(p.drag / p.mass) if self.drag else 0.0
+        # the quadratic body drag needs the air's velocity and a rotation this step does not
+        # compute: a vehicle with it takes core.dynamics.step (`step` returns None)
+        self.quadratic_drag = bool(np.any(p.c_dx > 0) or np.any(p.c_dy > 0) or np.any(p.c_dz > 0))
         self.rows = _mixer_rows(p.layout, (p.arm, p.arm, p.k_m))
         self.n_rotors = p.n_rotors
 
@@ -113,7 +116,7 @@ class SingleStep:
         external force (3,) N world ENU or None, and whether the motors are on; None where the caller
         must take `core.dynamics.step` itself: a non-finite angle (math.sin raises where np.sin
         gives NaN), or a machine whose NumPy trigonometry is not the C library's (`TRIG_AGREES`)."""
-        if not TRIG_AGREES:
+        if not TRIG_AGREES or self.quadratic_drag:
             return None
         try:
             return self._step(state, rotor, command, force, armed)
