@@ -44,7 +44,7 @@ def allocating_step(
     s = list(np.ascontiguousarray(state.T))
     w = list(np.ascontiguousarray(rotor.T))
     u = list(np.ascontiguousarray(cmd.T))
-    air = None if wind is None else list(np.ascontiguousarray(np.asarray(wind).T, dtype=state.dtype))
+    air = None if wind is None else np.ascontiguousarray(np.asarray(wind).T, dtype=state.dtype)
     for _ in range(substeps):
         s, w = _substep(s, w, u, d, h, ext, air)
     return np.stack(s, axis=1), np.stack(w, axis=1)
@@ -78,6 +78,11 @@ def _substep(s, w, u, d, h: float, ext: tuple | None = None, air: list | None = 
     thrust, tx, ty, tz = d.wrench(f)  # N, and N·m in body FLU (module docstring)
     if ext is not None and ext[1] is not None:  # external moment, body FLU
         tx, ty, tz = tx + ext[1][0], ty + ext[1][1], tz + ext[1][2]
+    aero_acc = None
+    if d.rotor_aero:  # core.rotor_aero's terms, at the start of the substep
+        att, vel, rates = np.stack([phi, th, psi]), np.stack([vx, vy, vz]), np.stack([p, q, r])
+        aero_acc, moment = dynamics._rotor_aero_terms(att, vel, rates, np.stack(w), air, d)
+        tx, ty, tz = tx + moment[0], ty + moment[1], tz + moment[2]
 
     # Euler's rotational equation I·ω̇ = τ − ω × (I·ω), diagonal I.
     p1 = p + h * (tx - d.izz_iyy * q * r) * d.inv_ixx
@@ -118,6 +123,8 @@ def _substep(s, w, u, d, h: float, ext: tuple | None = None, air: list | None = 
         ax = ax - rot[0][0] * db[0] - rot[0][1] * db[1] - rot[0][2] * db[2]
         ay = ay - rot[1][0] * db[0] - rot[1][1] * db[1] - rot[1][2] * db[2]
         az = az - rot[2][0] * db[0] - rot[2][1] * db[1] - rot[2][2] * db[2]
+    if aero_acc is not None:
+        ax, ay, az = ax + aero_acc[0], ay + aero_acc[1], az + aero_acc[2]
     if ext is not None and ext[0] is not None:  # external force / m, world ENU
         ax, ay, az = ax + ext[0][0], ay + ext[0][1], az + ext[0][2]
     hh = 0.5 * h * h

@@ -46,6 +46,10 @@ VEHICLES = {
     "idle_speed": dataclasses.replace(SEED_VEHICLE, omega_min=150.0, motor_tau=0.02),
     # RotorPy's Hummingbird parasitic drag per body axis, with PX4 SIH's linear drag on top
     "quadratic_drag": dataclasses.replace(PX4_SIH_QUADX, c_dx=0.005, c_dy=0.005, c_dz=0.01),
+    # and RotorPy's rotor aerodynamics (its Hummingbird's k_d, k_z, k_h, with a flapping moment)
+    "rotor_aero": dataclasses.replace(
+        PX4_SIH_QUADX, c_dx=0.005, c_dy=0.005, c_dz=0.01, k_d=1.19e-4, k_z=2.32e-4, k_h=3.39e-3, k_flap=1e-5
+    ),
     "asymmetric": dataclasses.replace(
         SEED_VEHICLE,
         arm=None,
@@ -123,7 +127,7 @@ def test_stepper_and_step_give_the_bits_of_the_allocating_step(vehicle, dtype, s
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: np.dtype(d).name)
 @pytest.mark.parametrize("substeps", [1, 3])
-@pytest.mark.parametrize("vehicle", ["seed", "quadratic_drag"])
+@pytest.mark.parametrize("vehicle", ["seed", "quadratic_drag", "rotor_aero"])
 def test_stepper_with_the_observations_trigonometry_gives_the_bits_of_the_allocating_step(dtype, substeps, vehicle):
     """The sines, cosines and thrust axis the observation computed for the state are the ones the
     dynamics computes first (QuadBatch hands them over); the later substeps compute their own."""

@@ -146,6 +146,7 @@ def test_the_shipped_px4_sih_file_holds_px4_and_rotorpy_numbers():
 @pytest.mark.parametrize("name", sorted(PRESETS))
 def test_written_file_reads_back_bit_for_bit(name, tmp_path):
     edited = dict(name="x1", mass=0.9, motor_tau=0.03, drag=0.2, c_dx=0.005, c_dy=0.007, c_dz=0.01)
+    edited.update(k_d=1.2e-4, k_h=3e-3)
     for v in (PRESETS[name], dataclasses.replace(PRESETS[name], **edited)):
         path = tmp_path / "v.toml"
         path.write_text(vehicle_to_toml(v), encoding="utf-8")

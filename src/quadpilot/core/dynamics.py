@@ -47,7 +47,10 @@ SIH's SIH_KDV law; a caller with wind adds drag·wind as its external force), an
 axis, RotorPy's parasitic drag D = −|v_a|·diag(c_dx, c_dy, c_dz)·v_a on the body airspeed
 v_a = Rᵀ(v − wind) (rotorpy/vehicles/multirotor.py, `compute_body_wrench`), with R and v at the
 start of the substep as for the thrust; `wind` (N, 3) world ENU gives the air's velocity (None:
-still air). A vehicle without quadratic drag steps with the same operations as before it existed.
+still air). RotorPy's rotor aerodynamics (rotor drag, induced inflow, translational lift, blade
+flapping: `core.rotor_aero`) act on the same airspeed, with the rotor speeds and body rates at the
+start of the substep. A vehicle without these terms steps with the same operations as before they
+existed; one with rotor aerodynamics allocates its terms' arrays (`_rotor_aero_terms`).
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ import numpy as np
 from .mixer import wrench_function, wrench_into_function
 from .params import NUM_MOTORS as NUM_MOTORS  # re-exported: the rotor count the contract carries
 from .params import ParamBatch
+from .rotor_aero import rotor_aero_wrench
 
 # The state's layout is named in one place, `core.state`; these are re-exported for the callers
 # that read them here.
@@ -192,6 +196,32 @@ class _Derived:
         self.quadratic_drag = bool(np.any(p.c_dx > 0) or np.any(p.c_dy > 0) or np.any(p.c_dz > 0))
         if self.quadratic_drag:  # per body axis, over the mass: (3, N)
             self.c_over_m = c(np.stack([p.c_dx / p.mass, p.c_dy / p.mass, p.c_dz / p.mass]))
+        self.rotor_aero = bool(any(np.any(a > 0) for a in (p.k_d, p.k_z, p.k_h, p.k_flap)))
+        if self.rotor_aero:
+            lay = np.asarray(p.layout, dtype=np.float64)
+            self.omega_max = c(p.omega_max)
+            self.rotor_x = c(lay[:, 0:1] * p.arm[None, :])  # (M, N) m, body FLU
+            self.rotor_y = c(lay[:, 1:2] * p.arm[None, :])
+            self.aero = tuple(c(a) for a in (p.k_d, p.k_z, p.k_h, p.k_flap))
+
+
+def _rotor_aero_terms(att, vel, rates, w, air, d: _Derived) -> tuple[np.ndarray, np.ndarray]:
+    """(acceleration (3, N) world ENU, moment (3, N) body FLU) of `core.rotor_aero` for rows of the
+    attitude, velocity, body rates, normalised rotor speeds w (M, N) and the air's velocity (None:
+    still air), at the start of a substep. Allocating: only a vehicle with these terms pays for them."""
+    sphi, sth, spsi = np.sin(att)
+    cphi, cth, cpsi = np.cos(att)
+    rot = np.array(  # R = Rz(ψ)·Ry(θ)·Rx(φ), body → world
+        [
+            [cpsi * cth, cpsi * sth * sphi - spsi * cphi, cpsi * sth * cphi + spsi * sphi],
+            [spsi * cth, spsi * sth * sphi + cpsi * cphi, spsi * sth * cphi - cpsi * sphi],
+            [-sth, cth * sphi, cth * cphi],
+        ]
+    )
+    rel = vel if air is None else vel - air
+    body_air = np.einsum("jin,jn->in", rot, rel)  # Rᵀ(v − wind)
+    force, moment = rotor_aero_wrench(body_air, rates, w * d.omega_max, d.rotor_x, d.rotor_y, *d.aero)
+    return np.einsum("ijn,jn->in", rot, force) * d.inv_m, moment
 
 
 class Stepper:
@@ -296,7 +326,7 @@ class Stepper:
             mom = self.mom_ext
             np.copyto(mom, torque.T, casting="unsafe")
         air = None
-        if wind is not None and d.quadratic_drag:  # only the quadratic drag reads the air's velocity
+        if wind is not None and (d.quadratic_drag or d.rotor_aero):  # the terms that read the air's velocity
             wind = np.asarray(wind)
             if wind.shape != (n, 3):
                 raise ValueError(f"wind must have shape ({n}, 3) (m/s, world ENU), got {wind.shape}")
@@ -385,6 +415,10 @@ class Stepper:
         torque = self.wrench[1:4]
         if mom is not None:  # tx, ty, tz = tx + m_x, ...
             add(torque, mom, torque)
+        aero_acc = None
+        if d.rotor_aero:  # RotorPy's rotor aerodynamics: a moment now, a force with the others below
+            aero_acc, aero_moment = _rotor_aero_terms(att, vel, rates, w, air, d)
+            add(torque, aero_moment, torque)
 
         # p1 = p + h·(tx − izz_iyy·q·r)·inv_ixx; q1 = q + h·(ty − ixx_izz·p·r)·inv_iyy; r1 alike
         gyro = self.gyro
@@ -455,6 +489,8 @@ class Stepper:
         if d.quadratic_drag:
             trig_rows = (self.sin, self.cos) if trig is None else trig[:2]
             self._quadratic_drag(x, vel, air, *trig_rows, za, k, t1)
+        if aero_acc is not None:
+            add(x, aero_acc, x)
         if acc is not None:  # ax = ax + force_x/m, ...
             add(x, acc, x)
         mul(k.h, vel, blk)  # x1 = x + h·vx + hh·ax, ...

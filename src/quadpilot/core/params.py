@@ -172,6 +172,16 @@ class VehicleParams:
     """N/(m/s)², the same along body y (left)."""
     c_dz: float = 0.0
     """N/(m/s)², the same along body z (up)."""
+    k_d: float = 0.0
+    """N/(rad/s · m/s), RotorPy's rotor drag (H force) in the rotor plane: each rotor's hub feels
+    −ω_i·k_d times its local airspeed's x and y (`core.rotor_aero`). 0: none."""
+    k_z: float = 0.0
+    """N/(rad/s · m/s), RotorPy's induced-inflow coefficient: the same along the rotor axis, −ω_i·k_z·v_z."""
+    k_h: float = 0.0
+    """N/(m/s)², RotorPy's translational lift: each rotor's thrust grows by k_h·(v_x² + v_y²) of its
+    local airspeed."""
+    k_flap: float = 0.0
+    """N·m/(rad/s · m/s), RotorPy's blade-flapping moment: −k_flap·ω_i·(v_i × e_z) at each hub."""
 
     def __post_init__(self) -> None:
         """Every field is checked where a VehicleParams is made (a preset, a scaled copy, a vehicle read
@@ -371,6 +381,10 @@ _VEHICLE_LIMITS = {
     "c_dx": (0.0, ">= 0"),
     "c_dy": (0.0, ">= 0"),
     "c_dz": (0.0, ">= 0"),
+    "k_d": (0.0, ">= 0"),
+    "k_z": (0.0, ">= 0"),
+    "k_h": (0.0, ">= 0"),
+    "k_flap": (0.0, ">= 0"),
 }
 
 # The seed vehicle (the ENPM 667 project after Pi et al. 2020): mass, arm and inertia as published.
@@ -457,6 +471,10 @@ _BATCH_FIELDS = (
     "c_dx",
     "c_dy",
     "c_dz",
+    "k_d",
+    "k_z",
+    "k_h",
+    "k_flap",
 )
 
 
@@ -520,9 +538,14 @@ class ParamBatch:
     """N/(m/s)² per drone, quadratic body drag (`VehicleParams.c_dx`); None: zeros, as c_dy, c_dz."""
     c_dy: np.ndarray | None = None
     c_dz: np.ndarray | None = None
+    k_d: np.ndarray | None = None
+    """Per drone, RotorPy's rotor aerodynamics (`VehicleParams.k_d` ...); None: zeros, as k_z, k_h, k_flap."""
+    k_z: np.ndarray | None = None
+    k_h: np.ndarray | None = None
+    k_flap: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for k in ("omega_min", "c_dx", "c_dy", "c_dz"):
+        for k in ("omega_min", "c_dx", "c_dy", "c_dz", "k_d", "k_z", "k_h", "k_flap"):
             if getattr(self, k) is None:
                 object.__setattr__(self, k, np.zeros_like(np.asarray(self.mass)))
         for k in _BATCH_FIELDS:

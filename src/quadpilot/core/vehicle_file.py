@@ -15,6 +15,10 @@ works the same way. The schema takes the numbers as RotorPy's and PX4's paramete
     motor_tau = 0.05           # s, first-order rotor lag, optional (0 = none)
     drag = 0.0                 # N s/m, optional: linear drag, see below
     drag_quadratic = [0.005, 0.005, 0.01]  # N/(m/s)^2 along body x, y, z, optional: RotorPy's c_Dx, c_Dy, c_Dz
+    k_d = 1.19e-4              # optional, RotorPy's rotor aerodynamics (names and units as RotorPy's):
+    k_z = 2.32e-4              #   rotor drag and induced inflow, N/(rad/s * m/s),
+    k_h = 3.39e-3              #   translational lift, N/(m/s)^2,
+    k_flap = 0.0               #   blade flapping, N m/(rad/s * m/s)
     [[rotor]]                  # one table per rotor, in actuator output order (output 1 first)
     x = 0.17                   # m, forward of the centre of mass (body FRD)
     y = 0.17                   # m, to the right
@@ -44,8 +48,9 @@ Drag, two laws, both optional and zero by default (`core.dynamics`):
   N/(m/s)^2: D = −|v_a|·diag(c_Dx, c_Dy, c_Dz)·v_a on the body airspeed v_a = Rᵀ(v − v_wind)
   (rotorpy/vehicles/multirotor.py, `compute_body_wrench`); RotorPy's airframe modules give the
   three numbers as they are (the coefficients are magnitudes, the same in FRD and FLU).
-A file may give both; they add. RotorPy's rotor drag (k_d, k_z), translational lift (k_h) and blade
-flapping (k_flap) have no counterpart here yet.
+A file may give both; they add. RotorPy's rotor aerodynamics take its names and units: rotor drag
+k_d and induced inflow k_z (N/(rad/s·m/s)), translational lift k_h (N/(m/s)^2), blade flapping
+k_flap (N·m/(rad/s·m/s)) (`core.rotor_aero`); all optional, 0 by default.
 
 k_m and arm are derived, and rounded to 12 significant digits: a file written from the decimal
 values of a `VehicleParams` (`vehicle_to_toml`) then reads back to the same floats, bit for bit.
@@ -76,7 +81,8 @@ MAX_FILE_BYTES = 64 * 1024
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 
 _REQUIRED = ("name", "mass", "ixx", "iyy", "izz", "k_thrust", "k_torque", "omega_max", "rotor")
-_OPTIONAL = ("omega_min", "motor_tau", "drag", "drag_quadratic")
+_ROTOR_AERO = ("k_d", "k_z", "k_h", "k_flap")
+_OPTIONAL = ("omega_min", "motor_tau", "drag", "drag_quadratic", *_ROTOR_AERO)
 _ROTOR_KEYS = ("x", "y", "spin")
 
 _FIELD_KEY = {
@@ -184,6 +190,7 @@ def _from_table(doc: dict, path) -> VehicleParams:
     motor_tau = number("motor_tau", ">= 0", 0.0)
     drag = _drag(doc.get("drag", 0.0), path)
     c_dx, c_dy, c_dz = _drag_quadratic(doc.get("drag_quadratic", [0.0, 0.0, 0.0]), path)
+    aero = {k: number(k, ">= 0", 0.0) for k in _ROTOR_AERO}
     rotors = _rotors(doc["rotor"], path)
     arm = _round12(sum(math.hypot(r.x, r.y) for r in rotors) / len(rotors))
     try:
@@ -204,6 +211,7 @@ def _from_table(doc: dict, path) -> VehicleParams:
             c_dx=c_dx,
             c_dy=c_dy,
             c_dz=c_dz,
+            **aero,
         )
     except VehicleParamsError as e:  # the layout, omega_min ≥ omega_max, a derived value out of range
         # VehicleParams says "vehicle 'name': field...: reason"; the file's message names the file's key
@@ -329,6 +337,9 @@ def vehicle_to_toml(v: VehicleParams) -> str:
     ]
     if v.c_dx or v.c_dy or v.c_dz:
         lines.append(f"drag_quadratic = [{v.c_dx!r}, {v.c_dy!r}, {v.c_dz!r}]  # N/(m/s)^2 along body x, y, z")
+    units = {"k_d": "N/(rad/s m/s)", "k_z": "N/(rad/s m/s)", "k_h": "N/(m/s)^2", "k_flap": "N m/(rad/s m/s)"}
+    if any(getattr(v, k) for k in _ROTOR_AERO):
+        lines += [f"{k} = {getattr(v, k)!r}  # {units[k]}, RotorPy's" for k in _ROTOR_AERO]
     for i, r in enumerate(v.rotors, start=1):
         lines += ["", f"[[rotor]]  # output {i}", f"x = {r.x!r}  # m, forward (FRD)", f"y = {r.y!r}  # m, right"]
         lines.append(f'spin = "{r.spin}"')

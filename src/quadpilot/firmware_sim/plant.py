@@ -88,9 +88,10 @@ class Plant:
         # drag·wind part as its external force, as the training environments' wind does.
         self._wind_force = vehicle.drag * self.wind  # N, world ENU
         self._windy = bool(self._wind_force.any())
-        # the quadratic body drag (`VehicleParams.c_dx` ...) acts on the airspeed: core.dynamics
-        # takes the wind itself for it
-        self._quadratic = bool(vehicle.c_dx or vehicle.c_dy or vehicle.c_dz)
+        # the quadratic body drag (`VehicleParams.c_dx` ...) and the rotor aerodynamics (k_d ...)
+        # act on the airspeed: core.dynamics takes the wind itself for them
+        terms = (vehicle.c_dx, vehicle.c_dy, vehicle.c_dz, vehicle.k_d, vehicle.k_z, vehicle.k_h, vehicle.k_flap)
+        self._quadratic = any(terms)
         # Gusts: each axis a first-order Gauss-Markov (Ornstein-Uhlenbeck) velocity with standard
         # deviation gust_std and correlation time gust_tau_s, discretised exactly per step (the
         # first-order shaping filter behind the Dryden model's low-frequency part, MIL-F-8785C).
@@ -202,7 +203,7 @@ class Plant:
         thrust_up = euler_to_rotmat(*self.state[ATT])[:, 2] * (self.thrust_n / v.mass)
         net = thrust_up + v.drag * (self.air - self.state[VEL]) / v.mass
         if self._quadratic:
-            net = net + sensors.rotation(self.state) @ sensors.quadratic_drag_flu(self.state, v, self.air)
+            net = net + sensors.rotation(self.state) @ sensors.air_force_flu(self.state, self.rotor, v, self.air)
         net[2] -= v.gravity
         if net[2] >= 0.0:
             return None
@@ -236,7 +237,7 @@ class Plant:
             return np.array([0.0, 0.0, self.thrust_n / v.mass])
         f = sensors.specific_force_flu(self.state, self.thrust_n, v.mass, v.drag, self.air, self._contact_acc, rot)
         if self._quadratic:
-            f += sensors.quadratic_drag_flu(self.state, v, self.air, rot)
+            f += sensors.air_force_flu(self.state, self.rotor, v, self.air, rot)
         return f
 
 

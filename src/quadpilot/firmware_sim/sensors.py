@@ -14,6 +14,8 @@ from typing import NamedTuple
 import numpy as np
 
 from quadpilot.core.frames import euler_to_rotmat
+from quadpilot.core.params import flu_layout
+from quadpilot.core.rotor_aero import rotor_aero_wrench
 from quadpilot.core.sensor_noise import ADIS16448, SensorNoise, SensorNoiseState
 from quadpilot.core.state import PITCH, RATES, ROLL, VEL, YAW, Z
 
@@ -120,13 +122,27 @@ def specific_force_flu(
     return f
 
 
-def quadratic_drag_flu(state: np.ndarray, vehicle, wind_enu, rot=None) -> np.ndarray:
-    """m/s², body FLU: RotorPy's parasitic drag over the mass, −|v_a|·diag(c_dx, c_dy, c_dz)·v_a / m
-    on the body airspeed v_a = Rᵀ(v − wind) (`core.dynamics`, module docstring); a force on the
-    airframe, so the accelerometer measures it. `rot`: the state's R, if known."""
+def air_force_flu(state: np.ndarray, rotor: np.ndarray, vehicle, wind_enu, rot=None) -> np.ndarray:
+    """m/s², body FLU: RotorPy's parasitic drag, −|v_a|·diag(c_dx, c_dy, c_dz)·v_a, and rotor
+    aerodynamics' force (`core.rotor_aero`, rotors at `rotor` ω/ω_max), over the mass, on the body
+    airspeed v_a = Rᵀ(v − wind) (`core.dynamics`, module docstring): forces on the airframe, so the
+    accelerometer measures them. `rot`: the state's R, if known."""
     air = world_to_body(state, state[VEL] - np.asarray(wind_enu, np.float64), rot)
     c = np.array([vehicle.c_dx, vehicle.c_dy, vehicle.c_dz])
-    return -float(np.linalg.norm(air)) * c * air / vehicle.mass
+    force = -float(np.linalg.norm(air)) * c * air
+    if vehicle.k_d or vehicle.k_z or vehicle.k_h or vehicle.k_flap:
+        lay = flu_layout(vehicle.rotors)
+        col = lambda a: np.asarray(a, np.float64).reshape(-1, 1)  # noqa: E731
+        aero, _ = rotor_aero_wrench(
+            air[:, None],
+            col(state[RATES]),
+            col(np.asarray(rotor) * vehicle.omega_max),
+            col(lay[:, 0]),
+            col(lay[:, 1]),
+            *(np.array([getattr(vehicle, k)]) for k in ("k_d", "k_z", "k_h", "k_flap")),
+        )
+        force = force + aero[:, 0]
+    return force / vehicle.mass
 
 
 class Reading(NamedTuple):

@@ -103,9 +103,9 @@ class SingleStep:
             self.decay = one(np.where(tau > 0, np.exp(-h / np.where(tau > 0, tau, 1.0)), 0.0))
         self.drag = bool(np.any(p.drag > 0))
         self.drag_over_m = one(p.drag / p.mass) if self.drag else 0.0
-        # the quadratic body drag needs the air's velocity and a rotation this step does not
-        # compute: a vehicle with it takes core.dynamics.step (`step` returns None)
-        self.quadratic_drag = bool(np.any(p.c_dx > 0) or np.any(p.c_dy > 0) or np.any(p.c_dz > 0))
+        # the quadratic body drag and the rotor aerodynamics need the air's velocity and a rotation
+        # this step does not compute: a vehicle with them takes core.dynamics.step (`step` returns None)
+        self.quadratic_drag = any(bool(np.any(a > 0)) for a in (p.c_dx, p.c_dy, p.c_dz, p.k_d, p.k_z, p.k_h, p.k_flap))
         self.rows = _mixer_rows(p.layout, (p.arm, p.arm, p.k_m))
         self.n_rotors = p.n_rotors
 

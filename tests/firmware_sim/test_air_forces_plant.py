@@ -1,4 +1,4 @@
-"""The simulator's plant with RotorPy's quadratic body drag (`VehicleParams.c_dx, c_dy, c_dz`): it
+"""The simulator's plant with RotorPy's quadratic body drag and rotor aerodynamics (`VehicleParams.c_dx`, k_d ...): it
 steps `core.dynamics.step` with the wind (the scalar step declines such a vehicle), and its
 accelerometer measures the drag as the dynamics applies it."""
 
@@ -12,7 +12,7 @@ from quadpilot.core.state import ATT, VEL, Z
 from quadpilot.firmware_sim import sensors
 from quadpilot.firmware_sim.plant import Plant
 
-VEHICLE = dataclasses.replace(PX4_SIH_QUADX, c_dx=0.02, c_dy=0.03, c_dz=0.05)
+VEHICLE = dataclasses.replace(PX4_SIH_QUADX, c_dx=0.02, c_dy=0.03, c_dz=0.05, k_d=1e-4, k_z=2e-4, k_h=3e-3, k_flap=1e-5)
 WIND = (3.0, -2.0, 0.5)
 
 
@@ -59,5 +59,5 @@ def test_the_accelerometer_measures_the_drag_the_dynamics_applies():
     )
     a = (s1[0, VEL] - plant.state[VEL]) / h + np.array([0.0, 0.0, VEHICLE.gravity])
     np.testing.assert_allclose(measured, sensors.world_to_body(plant.state, a), rtol=1e-6, atol=1e-6)
-    drag = sensors.quadratic_drag_flu(plant.state, VEHICLE, WIND)
+    drag = sensors.air_force_flu(plant.state, plant.rotor, VEHICLE, WIND)
     assert np.linalg.norm(drag) > 0.1  # the term is not negligible in this check

@@ -1,0 +1,154 @@
+"""A RotorPy airframe (the `quad_params` dict of a rotorpy/vehicles/*_params.py module) as a
+vehicle file, with nothing its dynamics uses dropped:
+
+    python -m quadpilot.core.rotorpy_vehicle rotorpy.vehicles.hummingbird_params -o hummingbird.toml
+
+| RotorPy (`Multirotor`) | vehicle file |
+|---|---|
+| `mass`, `Ixx`, `Iyy`, `Izz` | `mass`, `ixx`, `iyy`, `izz` (`Ixy`, `Ixz`, `Iyz` must be 0: principal axes) |
+| `k_eta`, `k_m` | `k_thrust`, `k_torque` |
+| `rotor_speed_max`, `rotor_speed_min`, `tau_m` | `omega_max`, `omega_min`, `motor_tau` |
+| `c_Dx`, `c_Dy`, `c_Dz` | `drag_quadratic` |
+| `k_d`, `k_z`, `k_h`, `k_flap` | the same names |
+| `rotor_pos` r1..r4 (FLU, z = 0) | `[[rotor]]` in that order, y negated (FRD) |
+| `rotor_directions` | each rotor's `spin`: +1 is `cw`, −1 `ccw` |
+
+Not carried, because RotorPy's dynamics do not use them or they are not the airframe's: the IMU
+position `rI`, `rotor_radius`, `motor_noise_std` (a simulator option: quad-sitl's noise flags), and
+the gains of RotorPy's own low-level controllers (`k_w`, `k_v`, `kp_att`, `kd_att`). Refused in one
+line: a key the dynamics uses that the model cannot hold (products of inertia, a rotor above or
+below the centre of mass, not four rotors).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import re
+import sys
+from pathlib import Path
+
+from .params import Rotor, VehicleParams, VehicleParamsError
+from .vehicle_file import NAME_PATTERN, vehicle_to_toml
+
+IGNORED = ("rI", "rotor_radius", "motor_noise_std", "k_w", "k_v", "kp_att", "kd_att", "num_rotors")
+"""RotorPy keys that are not the airframe's dynamics (module docstring)."""
+
+_ZERO_DEFAULT = ("c_Dx", "c_Dy", "c_Dz", "k_d", "k_z", "k_h", "k_flap", "Ixy", "Ixz", "Iyz", "rotor_speed_min")
+"""Keys RotorPy's Multirotor reads with `quad_params.get(key, 0.0)` (or treats as 0 when absent)."""
+
+
+class RotorPyAirframeError(ValueError):
+    """A RotorPy airframe this model cannot hold; one line saying which key and why."""
+
+
+def vehicle_from_rotorpy(quad_params: dict, name: str) -> VehicleParams:
+    """The `VehicleParams` of a RotorPy airframe (module docstring)."""
+
+    def number(key: str) -> float:
+        if key not in quad_params:
+            if key in _ZERO_DEFAULT:
+                return 0.0
+            raise RotorPyAirframeError(f"{key}: missing; RotorPy's Multirotor needs it")
+        v = quad_params[key]
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            raise RotorPyAirframeError(f"{key} = {v!r}: expected a number") from None
+        if not math.isfinite(f):
+            raise RotorPyAirframeError(f"{key} = {v!r}: expected a finite number")
+        return f
+
+    for key in ("Ixy", "Ixz", "Iyz"):
+        if number(key) != 0.0:
+            raise RotorPyAirframeError(
+                f"{key} = {number(key)}: the model takes a diagonal inertia (principal axes); expected 0"
+            )
+    positions = quad_params.get("rotor_pos")
+    directions = quad_params.get("rotor_directions")
+    if not isinstance(positions, dict) or directions is None:
+        raise RotorPyAirframeError("rotor_pos and rotor_directions: missing; expected one entry per rotor")
+    directions = [float(d) for d in list(directions)]
+    if len(positions) != 4 or len(directions) != 4:
+        raise RotorPyAirframeError(
+            f"rotor_pos: {len(positions)} rotors, rotor_directions: {len(directions)}; expected 4 (the policy's action)"
+        )
+    rotors = []
+    for (label, pos), direction in zip(positions.items(), directions, strict=True):
+        x, y, z = (float(c) for c in list(pos))
+        if z != 0.0:
+            raise RotorPyAirframeError(f"rotor_pos {label}: z = {z}; the model's rotors lie in the body x-y plane")
+        if direction not in (1.0, -1.0):
+            raise RotorPyAirframeError(f"rotor_directions: {direction} for {label}; expected +1 or -1")
+        # FLU → FRD; RotorPy's direction is the sign of the rotor's yaw moment on the body: +1 is clockwise
+        rotors.append(Rotor(x, -y, "cw" if direction > 0 else "ccw"))
+    k_eta = number("k_eta")
+    try:
+        return VehicleParams(
+            name=name,
+            mass=number("mass"),
+            arm=None,  # the rotors' mean distance (what a vehicle file derives)
+            ixx=number("Ixx"),
+            iyy=number("Iyy"),
+            izz=number("Izz"),
+            k_f=k_eta,
+            k_m=number("k_m") / k_eta,
+            omega_max=number("rotor_speed_max"),
+            motor_tau=number("tau_m"),
+            omega_min=number("rotor_speed_min"),
+            rotors=tuple(rotors),
+            c_dx=number("c_Dx"),
+            c_dy=number("c_Dy"),
+            c_dz=number("c_Dz"),
+            k_d=number("k_d"),
+            k_z=number("k_z"),
+            k_h=number("k_h"),
+            k_flap=number("k_flap"),
+        )
+    except VehicleParamsError as e:
+        raise RotorPyAirframeError(str(e)) from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m quadpilot.core.rotorpy_vehicle",
+        description="Write a RotorPy airframe module's quad_params as a quadpilot vehicle file.",
+    )
+    ap.add_argument("module", help="a RotorPy parameter module, e.g. rotorpy.vehicles.crazyflie_params")
+    ap.add_argument("--name", help="the vehicle's name (default: the module's last part without _params)")
+    ap.add_argument("-o", "--out", type=Path, help="the .toml file to write (default: print it)")
+    args = ap.parse_args(argv)
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*", args.module):
+        print(f"error: {args.module!r}: expected a dotted module name, not a path", file=sys.stderr)
+        return 2
+    name = args.name or args.module.rsplit(".", 1)[-1].removesuffix("_params")
+    if not NAME_PATTERN.fullmatch(name):
+        print(f"error: --name {name!r}: expected 1-64 letters, digits, '_', '-' or '.'", file=sys.stderr)
+        return 2
+    try:
+        module = importlib.import_module(args.module)
+    except ImportError as e:
+        print(f"error: cannot import {args.module}: {e} (pip install rotorpy)", file=sys.stderr)
+        return 1
+    params = getattr(module, "quad_params", None)
+    if not isinstance(params, dict):
+        print(f"error: {args.module} has no quad_params dict; expected a RotorPy parameter module", file=sys.stderr)
+        return 1
+    try:
+        vehicle = vehicle_from_rotorpy(params, name)
+    except RotorPyAirframeError as e:
+        print(f"error: {args.module}: {e}", file=sys.stderr)
+        return 1
+    head = f"# {args.module} (RotorPy), written by python -m quadpilot.core.rotorpy_vehicle\n"
+    text = head + vehicle_to_toml(vehicle)
+    if args.out is None:
+        sys.stdout.write(text)
+    else:
+        args.out.write_text(text, encoding="utf-8")
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
