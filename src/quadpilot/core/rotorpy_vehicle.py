@@ -32,6 +32,25 @@ from pathlib import Path
 from .params import Rotor, VehicleParams, VehicleParamsError
 from .vehicle_file import NAME_PATTERN, vehicle_to_toml
 
+SOURCE_KEYS = {
+    "mass": "mass",
+    "ixx": "Ixx",
+    "iyy": "Iyy",
+    "izz": "Izz",
+    "k_thrust": "k_eta",
+    "k_torque": "k_m",
+    "omega_max": "rotor_speed_max",
+    "omega_min": "rotor_speed_min",
+    "motor_tau": "tau_m",
+    "drag": None,
+    "drag_quadratic": "c_Dx, c_Dy, c_Dz",
+    "k_d": "k_d",
+    "k_z": "k_z",
+    "k_h": "k_h",
+    "k_flap": "k_flap",
+}
+"""Vehicle-file key → the RotorPy key it is written from (each line of a written file cites it)."""
+
 IGNORED = ("rI", "rotor_radius", "motor_noise_std", "k_w", "k_v", "kp_att", "kd_att", "num_rotors")
 """RotorPy keys that are not the airframe's dynamics (module docstring)."""
 
@@ -110,6 +129,24 @@ def vehicle_from_rotorpy(quad_params: dict, name: str) -> VehicleParams:
         raise RotorPyAirframeError(str(e)) from None
 
 
+def cite_sources(text: str, module: str) -> str:
+    """A written vehicle file with every value's RotorPy source added to its comment."""
+    out, rotor = [], 0
+    for line in text.splitlines():
+        key = line.split("=", 1)[0].strip()
+        if line.startswith("[[rotor]]"):
+            rotor += 1
+        elif key in SOURCE_KEYS and "#" in line:
+            src = SOURCE_KEYS[key]
+            line += f", {module} {src}" if src else f" (RotorPy has no linear drag: {module} gives none)"
+        elif key in ("x", "y"):
+            line += f", {module} rotor_pos r{rotor}" + (" (FLU y negated)" if key == "y" else "")
+        elif key == "spin":
+            line += f"  # {module} rotor_directions[{rotor - 1}] (+1 cw, -1 ccw)"
+        out.append(line)
+    return "\n".join(out) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m quadpilot.core.rotorpy_vehicle",
@@ -141,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {args.module}: {e}", file=sys.stderr)
         return 1
     head = f"# {args.module} (RotorPy), written by python -m quadpilot.core.rotorpy_vehicle\n"
-    text = head + vehicle_to_toml(vehicle)
+    text = head + cite_sources(vehicle_to_toml(vehicle), args.module)
     if args.out is None:
         sys.stdout.write(text)
     else:
