@@ -3,6 +3,7 @@ kept as data for docs/raptor.md:
 
     .venv/bin/python benchmarks/airframes.py run docs/bench/airframes.json          # every airframe
     .venv/bin/python benchmarks/airframes.py run out.json --airframe px4_sih_quadx  # one
+    .venv/bin/python benchmarks/airframes.py run docs/bench/airframes.json --merge --airframe x500  # one, into the rest
 
 Controllers, the same flights for each:
 - `raptor`: the RAPTOR foundation policy zero-shot (`quad-sitl raptor:foundation --vehicle AIRFRAME`),
@@ -18,6 +19,9 @@ flight: success (the hover rule: mean error over the last 2 s at most 5 cm, yaw 
 error over the last 2 s, the worst heading error, crashes.
 
 Not here yet: RotorPy's side, the step and figure-eight flights, and a generalist policy.
+`rotorpy_hummingbird`'s `ours` is models/hover_hummingbird, trained on tests/data/vehicles/
+rotorpy_hummingbird.toml (RotorPy's Hummingbird without its drag and rotor aerodynamics, which the
+model did not have then); the set's file has them.
 """
 
 from __future__ import annotations
@@ -33,12 +37,14 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+SET = ROOT / "benchmarks" / "airframes"
 AIRFRAMES = {
     "px4_sih_quadx": "px4_sih_quadx",
-    "rotorpy_hummingbird": str(ROOT / "tests/data/vehicles/rotorpy_hummingbird.toml"),
     "crazyflie": "crazyflie",
+    **{p.stem: str(p) for p in sorted(SET.glob("*.toml"))},
 }
-"""name → what `--vehicle` takes (a shipped name or a vehicle file)."""
+"""name → what `--vehicle` takes (a shipped name or a vehicle file): two shipped presets and the
+airframe set of benchmarks/airframes/ (docs/raptor.md)."""
 OURS = {
     "px4_sih_quadx": ROOT / "models/hover_px4_sih/policy.onnx",
     "rotorpy_hummingbird": ROOT / "models/hover_hummingbird/policy.onnx",
@@ -77,17 +83,27 @@ def fly(policy: str, vehicle: str, flight: list[str], tmp: Path, episodes: int =
     return {k: s[k] for k in KEPT if k in s}
 
 
-def run(out: Path, airframes: list[str], episodes: int = EPISODES) -> dict:
+def run(out: Path, airframes: list[str], episodes: int = EPISODES, merge: bool = False) -> dict:
+    """Fly `airframes` and write the JSON; `merge`: into the one at `out`, keeping its other airframes
+    (each airframe's entry says when, at which commit and under which load it was flown)."""
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     data = {
         "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "command": "benchmarks/airframes.py run " + str(out),
         "machine": {"processor": platform.processor(), "cpus": os.cpu_count(), "python": platform.python_version()},
         "load_1min_before": os.getloadavg()[0],
-        "commit": subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip(),
+        "commit": commit,
         "episodes": episodes,
         "flights": {k: " ".join(v) for k, v in FLIGHTS.items()},
         "airframes": {},
     }
+    if merge and out.is_file():
+        old = json.loads(out.read_text())
+        if old.get("episodes") != episodes or old.get("flights") != data["flights"]:
+            raise SystemExit(f"airframes: {out} holds other flights or episode counts; run it whole")
+        for rows in old["airframes"].values():  # the earlier runs' airframes, with their own run data
+            rows.setdefault("run", {k: old[k] for k in ("started", "commit", "load_1min_before")})
+        data["airframes"] = old["airframes"]
     with tempfile.TemporaryDirectory() as tmp:
         for name in airframes:
             vehicle = AIRFRAMES[name]
@@ -95,6 +111,7 @@ def run(out: Path, airframes: list[str], episodes: int = EPISODES) -> dict:
             if name in OURS:
                 controllers["ours"] = str(OURS[name])
             rows = data["airframes"][name] = {"vehicle": vehicle.replace(str(ROOT) + "/", "")}
+            rows["run"] = {"started": data["started"], "commit": commit, "load_1min_before": os.getloadavg()[0]}
             for controller, policy in controllers.items():
                 rows[controller] = {f: fly(policy, vehicle, args, Path(tmp), episodes) for f, args in FLIGHTS.items()}
                 for f, r in rows[controller].items():
@@ -111,8 +128,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("out", type=Path)
     r.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every one.")
     r.add_argument("--episodes", type=int, default=EPISODES)
+    r.add_argument("--merge", action="store_true", help="Update these airframes in OUT, keep the others.")
     args = p.parse_args(argv)
-    run(args.out, args.airframe or list(AIRFRAMES), args.episodes)
+    run(args.out, args.airframe or list(AIRFRAMES), args.episodes, args.merge)
     return 0
 
 

@@ -37,10 +37,13 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     data = json.loads(Path(argv[0]).read_text())
     print(table(data))
+    runs = [rows.get("run", data) for rows in data["airframes"].values()]
+    commits = ", ".join(sorted({r["commit"][:10] for r in runs}))
+    loads = [r["load_1min_before"] for r in runs]
     print(
         f"\n{data['episodes']} episodes per cell (success · mean error over the last 2 s); "
-        f"{data['machine']['cpus']} CPUs, load {data['load_1min_before']:.1f} at the start; "
-        f"commit {data['commit'][:10]}."
+        f"{data['machine']['cpus']} CPUs, load {min(loads):.1f} to {max(loads):.1f} at the starts; "
+        f"commit {commits}."
     )
     return 0
 

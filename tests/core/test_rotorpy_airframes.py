@@ -6,6 +6,7 @@ for the same motor commands. RotorPy is the reference: it is not our code."""
 import dataclasses
 import importlib
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -149,3 +150,33 @@ def test_the_model_flies_without_rotor_aerodynamics_as_before():
     assert not math.isclose(
         dynamics.step(s, u, u, ParamBatch.from_preset(v, 1), 0.01)[0][0, 3], a[0][0, 3], rel_tol=1e-9
     )
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).parents[2] / "benchmarks" / "airframes").glob("*.toml")))
+def test_a_vehicle_file_goes_to_rotorpy_and_back(path):
+    """rotorpy_params (a vehicle for RotorPy's simulators) and vehicle_from_rotorpy are inverses on the
+    airframe set, and RotorPy's Multirotor computes the wrench our dynamics does for it."""
+    from rotorpy.vehicles.multirotor import Multirotor
+
+    from quadpilot.core.rotorpy_vehicle import rotorpy_params
+
+    v = load_vehicle_file(path)
+    back = vehicle_from_rotorpy(rotorpy_params(v), v.name)
+    assert dataclasses.replace(back, arm=v.arm, k_m=v.k_m) == v
+    assert back.k_m == pytest.approx(v.k_m, rel=1e-12) and back.arm == pytest.approx(v.arm, rel=1e-9)
+    model = Multirotor(rotorpy_params(v), aero=True)
+    u = np.array([0.5, 0.6, 0.7, 0.8])
+    force, moment = model.compute_body_wrench(np.zeros(3), u * v.omega_max, np.zeros(3))
+    s = np.zeros(12)
+    s[Z] = 5.0
+    s1, _ = dynamics.step(s[None], u[None], u[None], ParamBatch.from_preset(v, 1), 1e-3)
+    np.testing.assert_allclose((s1[0, VEL] - s[VEL]) / 1e-3 + [0, 0, G_ROTORPY], force / v.mass, rtol=1e-9, atol=1e-9)
+    alpha = moment / np.array([v.ixx, v.iyy, v.izz])  # at rest: no gyroscopic term
+    np.testing.assert_allclose(s1[0, RATES] / 1e-3, alpha, rtol=1e-7, atol=1e-9 * np.abs(alpha).max())
+
+
+def test_a_vehicle_with_linear_drag_is_not_flown_in_rotorpy_without_it():
+    from quadpilot.core.rotorpy_vehicle import rotorpy_params
+
+    with pytest.raises(RotorPyAirframeError, match="RotorPy has no linear drag"):
+        rotorpy_params(load_vehicle_file(Path(__file__).parents[2] / "src/quadpilot/vehicles/px4_sih_quadx.toml"))

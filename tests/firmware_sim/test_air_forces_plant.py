@@ -61,3 +61,15 @@ def test_the_accelerometer_measures_the_drag_the_dynamics_applies():
     np.testing.assert_allclose(measured, sensors.world_to_body(plant.state, a), rtol=1e-6, atol=1e-6)
     drag = sensors.air_force_flu(plant.state, plant.rotor, VEHICLE, WIND)
     assert np.linalg.norm(drag) > 0.1  # the term is not negligible in this check
+
+
+def test_wind_adds_no_assumed_linear_drag_to_a_vehicle_with_its_own_drag_law():
+    """DEFAULT_WIND_DRAG stands in for a vehicle without any drag law; RotorPy's quadratic drag and
+    rotor aerodynamics act on the wind themselves, so nothing is added to them."""
+    from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG, SimConfig
+
+    windy = dict(wind=(3.0, 0.0, 0.0))
+    assert SimConfig(**windy).effective_drag == DEFAULT_WIND_DRAG  # the seed vehicle: no drag law
+    quadratic_only = dataclasses.replace(VEHICLE, drag=0.0)
+    own = SimConfig(**windy, airframe=quadratic_only)
+    assert own.effective_drag == 0.0 and own.vehicle_params.c_dx == VEHICLE.c_dx

@@ -2,11 +2,14 @@
 10 ms wait for the autopilot's answer must not share a GIL with anything):
 
     python rotorpy_px4.py PORT RATE_HZ STEPS OUT.json [--mavlink 1|2] [--seed N] [--vehicle sih|hummingbird]
+                          [--vehicle-file FILE.toml]
 
 `rotorpy.vehicles.px4_multirotor.PX4Multirotor` with RotorPy's PX4 SIH quad-X parameters
 (`px4_sihsim_quadx_params`, PX4's 10040_sihsim_quadx airframe) or its AscTec Hummingbird
 (`hummingbird_params`, rotors numbered RotorPy's way, not PX4's), 5 m up, level, at rest, rotors at
-rest. It listens on tcp 127.0.0.1:PORT, waits (in its constructor) for the autopilot's HEARTBEAT,
+rest; or any vehicle file, as RotorPy parameters (`quadpilot.core.rotorpy_vehicle.rotorpy_params`:
+rotors in the file's output order, so a policy's outputs reach the rotors they were trained for).
+It listens on tcp 127.0.0.1:PORT, waits (in its constructor) for the autopilot's HEARTBEAT,
 then loops `state = vehicle.step(state, control, 1 / RATE_HZ)` STEPS times: each step sends
 HIL_STATE_QUATERNION and HIL_SENSOR and waits up to 10 ms for one HIL_ACTUATOR_CONTROLS, else flies
 the step on zero motors.
@@ -38,6 +41,7 @@ args.add_argument("out")
 args.add_argument("--mavlink", type=int, choices=(1, 2), default=1)
 args.add_argument("--seed", type=int, default=0)
 args.add_argument("--vehicle", choices=("sih", "hummingbird"), default="sih")
+args.add_argument("--vehicle-file", help="a vehicle file, flown with RotorPy's dynamics (instead of --vehicle)")
 args = args.parse_args()
 if args.mavlink == 2:
     os.environ["MAVLINK20"] = "1"
@@ -47,7 +51,12 @@ else:
 import numpy as np  # noqa: E402
 from rotorpy.vehicles.px4_multirotor import PX4Multirotor  # noqa: E402
 
-if args.vehicle == "sih":
+if args.vehicle_file:
+    from quadpilot.core.rotorpy_vehicle import rotorpy_params
+    from quadpilot.core.vehicle_file import load_vehicle_file
+
+    quad_params = rotorpy_params(load_vehicle_file(args.vehicle_file))
+elif args.vehicle == "sih":
     from rotorpy.vehicles.px4_sihsim_quadx_params import quad_params
 else:
     from rotorpy.vehicles.hummingbird_params import quad_params

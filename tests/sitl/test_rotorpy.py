@@ -57,7 +57,8 @@ class RotorPyFlight:
     """deg, mean |heading error| over the last WINDOW_S against the start heading (the node's
     commanded heading); None: not judged (a policy trained before the yaw rule)."""
     vehicle: str = "sih"
-    """RotorPy's airframe: "sih" (its PX4 SIH quad-X) or "hummingbird" (`rotorpy_px4.py --vehicle`)."""
+    """RotorPy's airframe: "sih" (its PX4 SIH quad-X) or "hummingbird" (`rotorpy_px4.py --vehicle`), or a
+    vehicle file flown with RotorPy's dynamics (`rotorpy_px4.py --vehicle-file`)."""
     duration_s: float = 5.0
     target: tuple[float, float, float] | None = None
     """--target E,N,U from home (the start position); None: hold the start."""
@@ -128,8 +129,7 @@ def fly(case: RotorPyFlight, tmp_path: Path) -> tuple[dict, dict, np.ndarray, su
             record,
             "--mavlink",
             str(case.mavlink),
-            "--vehicle",
-            case.vehicle,
+            *(["--vehicle-file", case.vehicle] if case.vehicle.endswith(".toml") else ["--vehicle", case.vehicle]),
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

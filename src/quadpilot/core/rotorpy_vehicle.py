@@ -129,6 +129,46 @@ def vehicle_from_rotorpy(quad_params: dict, name: str) -> VehicleParams:
         raise RotorPyAirframeError(str(e)) from None
 
 
+def rotorpy_params(v: VehicleParams) -> dict:
+    """The other way: a vehicle as RotorPy's `quad_params`, for flying a vehicle file in RotorPy's
+    simulators (its Multirotor, PX4Multirotor). RotorPy has no linear drag: a vehicle with `drag` > 0
+    is refused (RotorPyAirframeError) rather than flown without it."""
+    if v.drag > 0:
+        raise RotorPyAirframeError(
+            f"vehicle {v.name!r}: drag = {v.drag} N s/m (linear): RotorPy has no linear drag; "
+            "expected drag = 0 (RotorPy's is drag_quadratic)"
+        )
+    import numpy as np  # the rotor positions as RotorPy's arrays
+
+    return {
+        "mass": v.mass,
+        "Ixx": v.ixx,
+        "Iyy": v.iyy,
+        "Izz": v.izz,
+        "Ixy": 0.0,
+        "Iyz": 0.0,
+        "Ixz": 0.0,
+        "num_rotors": 4,
+        "rotor_radius": 0.0,  # not used by RotorPy's dynamics
+        "rotor_pos": {f"r{i}": np.array([r.x, -r.y, 0.0]) for i, r in enumerate(v.rotors, start=1)},
+        "rotor_directions": np.array([1 if r.spin == "cw" else -1 for r in v.rotors]),
+        "rI": np.zeros(3),
+        "c_Dx": v.c_dx,
+        "c_Dy": v.c_dy,
+        "c_Dz": v.c_dz,
+        "k_eta": v.k_f,
+        "k_m": v.k_m * v.k_f,
+        "k_d": v.k_d,
+        "k_z": v.k_z,
+        "k_h": v.k_h,
+        "k_flap": v.k_flap,
+        "tau_m": v.motor_tau,
+        "rotor_speed_min": v.omega_min,
+        "rotor_speed_max": v.omega_max,
+        "motor_noise_std": 0.0,
+    }
+
+
 def cite_sources(text: str, module: str) -> str:
     """A written vehicle file with every value's RotorPy source added to its comment."""
     out, rotor = [], 0

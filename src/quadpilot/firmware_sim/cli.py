@@ -166,7 +166,7 @@ def passed_on_flags() -> dict[str, dict]:
         type=float,
         default=None,
         metavar="D",
-        help=f"N·s/m linear drag (default: preset's, or {DEFAULT_WIND_DRAG} with wind)",
+        help=f"N·s/m linear drag (default: the vehicle's, or {DEFAULT_WIND_DRAG} with wind if it has no drag law)",
     )
     _flag(
         table,

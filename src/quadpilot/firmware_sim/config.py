@@ -25,10 +25,11 @@ from .faults import SensorFault
 from .plant import landed_state
 
 DEFAULT_WIND_DRAG = 0.2
-"""N·s/m, linear drag used when there is wind and neither the preset nor `SimConfig.drag` gives
-one. An assumed order of magnitude for a ~0.7 kg quadrotor under the linear rotor-drag model
-(Faessler, Franchi and Scaramuzza, RA-L 2018), not identified for this airframe: a 5 m/s wind then
-pushes with 1 N, 15 % of the seed vehicle's weight."""
+"""N·s/m, linear drag used when there is wind and neither the vehicle (no drag law of its own:
+linear, quadratic or rotor aerodynamics) nor `SimConfig.drag` gives one. An assumed order of
+magnitude for a ~0.7 kg quadrotor under the linear rotor-drag model (Faessler, Franchi and
+Scaramuzza, RA-L 2018), not identified for this airframe: a 5 m/s wind then pushes with 1 N, 15 % of
+the seed vehicle's weight."""
 
 START_MODES = ("air", "landed")
 """`SimConfig.start`: where an episode starts."""
@@ -202,8 +203,11 @@ class SimConfig:
         """N·s/m, the drag coefficient the plant uses (see `drag`)."""
         if self.drag is not None:
             return float(self.drag)
-        own = self.base_vehicle.drag
-        return DEFAULT_WIND_DRAG if own == 0 and (any(self.wind) or self.gust > 0) else own
+        v = self.base_vehicle
+        # a vehicle with a drag law of its own (linear, or RotorPy's quadratic drag and rotor
+        # aerodynamics, which act on the wind themselves) gets no assumed one added
+        own_law = v.drag > 0 or any((v.c_dx, v.c_dy, v.c_dz, v.k_d, v.k_z, v.k_h, v.k_flap))
+        return DEFAULT_WIND_DRAG if not own_law and (any(self.wind) or self.gust > 0) else v.drag
 
     @property
     def base_vehicle(self) -> VehicleParams:
