@@ -24,11 +24,21 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-# label → (file under src/quadpilot, mutant-name glob, the `mutmut run` command that measures it)
+# label → (file under src/quadpilot, the mutant-name globs that select its mutants: the arguments of
+# the `mutmut run` command that measures it)
 MODULES = {
     "gae": ("train/gae.py", "quadpilot.train.gae.*"),
-    "ppo_update": ("train/ppo.py", "quadpilot.train.ppo.xǁPPOǁupdate__mutmut_*"),
+    "ppo_update": (
+        "train/ppo.py",
+        ("quadpilot.train.ppo.xǁPPOǁupdate__mutmut_*", "quadpilot.train.ppo.xǁ*PPOǁ_gradient_step__mutmut_*"),
+    ),
+    "numpy_ppo": ("train/numpy_ppo.py", "quadpilot.train.numpy_ppo.*"),
     "dynamics": ("core/dynamics.py", "quadpilot.core.dynamics.*"),
+    "stepper": (
+        "core/dynamics.py",
+        ("quadpilot.core.dynamics.xǁStepperǁ*", "quadpilot.core.dynamics.xǁ_StepperConstantsǁ*"),
+    ),
+    "mixer": ("core/mixer.py", "quadpilot.core.mixer.*"),
     "core_frames": ("core/frames.py", "quadpilot.core.frames.*"),
     "normalize": ("core/normalize.py", "quadpilot.core.normalize.*"),
     "reward": ("core/reward.py", "quadpilot.core.reward.*"),
@@ -38,8 +48,11 @@ MODULES = {
 }
 LABELS = {
     "gae": "`train/gae.py`",
-    "ppo_update": "`train/ppo.py`, `PPO.update`",
+    "ppo_update": "`train/ppo.py`, `PPO.update` and the variants' `_gradient_step` (the losses)",
+    "numpy_ppo": "`train/numpy_ppo.py` (the update every MLP trains with)",
     "dynamics": "`core/dynamics.py`",
+    "stepper": "`core/dynamics.py`, the in-place `Stepper` (of the row above)",
+    "mixer": "`core/mixer.py`",
     "core_frames": "`core/frames.py`",
     "normalize": "`core/normalize.py`",
     "reward": "`core/reward.py`",
@@ -54,20 +67,22 @@ def count(mutants: Path, label: str) -> dict:
     """One module's result from mutmut's meta file: counts per status, score, survivors."""
     from mutmut.stats import status_by_exit_code
 
-    rel, glob = MODULES[label]
+    rel, globs = MODULES[label]
+    globs = (globs,) if isinstance(globs, str) else globs
+    glob = " ".join(globs)
     meta = mutants / "src" / "quadpilot" / (rel + ".meta")
     try:
         codes = json.loads(meta.read_text())["exit_code_by_key"]
     except (OSError, json.JSONDecodeError, KeyError) as e:
         raise SystemExit(f"report_mutmut: cannot read mutmut's results {meta}: {e}") from None
-    status = {k: status_by_exit_code[v] for k, v in codes.items() if fnmatch.fnmatchcase(k, glob)}
+    status = {k: status_by_exit_code[v] for k, v in codes.items() if any(fnmatch.fnmatchcase(k, g) for g in globs)}
     if not status:
         raise SystemExit(f"report_mutmut: no mutant of {label} ({glob}) in {meta}")
     unchecked = sorted(k for k, s in status.items() if s == "not checked")
     if unchecked:
         raise SystemExit(
             f"report_mutmut: {len(unchecked)} mutants of {label} not checked yet (e.g. {unchecked[0]}); "
-            f"run `mutmut run --max-children 2 {glob!r}` first"
+            f"run `mutmut run --max-children 2 {' '.join(repr(g) for g in globs)}` first"
         )
     counts = {s: sum(1 for v in status.values() if v == s) for s in STATUSES}
     counts = {s: n for s, n in counts.items() if n or s in ("killed", "survived", "timeout")}
@@ -77,7 +92,7 @@ def count(mutants: Path, label: str) -> dict:
         "measured": measured,  # when mutmut last wrote its result file
         "file": f"src/quadpilot/{rel}",
         "selection": glob,
-        "command": f'mutmut run --max-children 2 "{glob}"',
+        "command": "mutmut run --max-children 2 " + " ".join(f'"{g}"' for g in globs),
         "mutants": total,
         "counts": counts,
         "score": (counts["killed"] + counts["timeout"]) / total,
@@ -90,10 +105,12 @@ def _natural(name: str):
     return (head, int(n) if n.isdigit() else 0)
 
 
-def record(mutants: Path, out: Path, labels: list[str]) -> dict:
+def record(mutants: Path, out: Path, labels: list[str], commit: str | None = None) -> dict:
     data = json.loads(out.read_text()) if out.exists() else {"modules": {}}
     for label in labels:
         entry = count(mutants, label)
+        if commit:
+            entry["commit"] = commit  # the commit whose code mutmut mutated
         entry["mutmut"] = metadata.version("mutmut")
         entry["python"] = platform.python_version()
         data["modules"][label] = entry
@@ -106,14 +123,15 @@ def record(mutants: Path, out: Path, labels: list[str]) -> dict:
 
 def table(data: dict) -> str:
     lines = [
-        "| module | mutants | killed | survived | timeout | score | command |",
-        "|---|---:|---:|---:|---:|---:|---|",
+        "| module | mutants | killed | survived | timeout | score | measured | command |",
+        "|---|---:|---:|---:|---:|---:|---|---|",
     ]
     for label, m in data["modules"].items():
         c = m["counts"]
+        when = m["measured"][:10] + (f", {m['commit'][:7]}" if m.get("commit") else "")
         lines.append(
             f"| {LABELS[label]} | {m['mutants']} | {c['killed']} | {c['survived']} | {c['timeout']} | "
-            f"{100 * m['score']:.1f} % | `{m['command']}` |"
+            f"{100 * m['score']:.1f} % | {when} | `{m['command']}` |"
         )
     return "\n".join(lines) + "\n"
 
@@ -125,11 +143,12 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("mutants", type=Path, help="mutmut's directory (mutants/)")
     r.add_argument("json", type=Path)
     r.add_argument("modules", nargs="+", choices=sorted(MODULES))
+    r.add_argument("--commit", help="the commit of the code mutmut ran on (shown in the table)")
     t = sub.add_parser("table", help="the Markdown table of docs/testing.md")
     t.add_argument("json", type=Path)
     args = p.parse_args(argv)
     if args.cmd == "record":
-        data = record(args.mutants, args.json, args.modules)
+        data = record(args.mutants, args.json, args.modules, args.commit)
     else:
         try:
             data = json.loads(args.json.read_text())

@@ -268,3 +268,142 @@ def test_a_network_numpy_does_not_implement_is_refused():
 
     with pytest.raises(ValueError, match="Linear layers with one Tanh, ReLU or ELU"):
         NumpyPPO(ppo.model, ppo.opt)
+
+
+# --- edges of the update and what it refuses ---------------------------------------------------
+
+
+def numpy_arrays(fast: PPO, batch: dict) -> tuple:
+    return tuple(batch[k].numpy().astype("float32") for k in ("obs", "act", "logp", "adv", "ret", "val"))
+
+
+@pytest.mark.parametrize("clip_value", [False, True])
+def test_the_total_loss_is_the_one_torchs_update_minimises(clip_value):
+    """loss_and_grad's loss (the number its finite-check guards) is L_policy + c_v·L_value − c_e·H."""
+    ref, fast, batch = pair(1, clip_value=clip_value, max_grad_norm=1e9)
+    cfg = fast.cfg
+    fast._np.attach()
+    loss = fast._np.loss_and_grad(*numpy_arrays(fast, batch), cfg)[0]
+    m = ref.update(batch)
+    want = m["policy_loss"] + cfg.vf_coef * m["value_loss"] - cfg.ent_coef * m["entropy"]
+    assert loss == pytest.approx(want, abs=TOL)
+
+
+@pytest.mark.parametrize("clip_value", [False, True])
+def test_the_first_minibatch_of_an_update_ties_as_torch_does(clip_value):
+    """On fresh rollouts every ratio is exactly 1 and every clipped value exactly V: min(r·Â, clip(r)·Â)
+    and max of the two value losses tie on every row, and torch gives each side half the gradient."""
+    ref, fast, batch = pair(0, clip_value=clip_value, max_grad_norm=1e9)
+    with torch.no_grad():
+        batch["logp"] = ref.model.distribution(batch["obs"]).log_prob(batch["act"]).sum(-1)
+        batch["val"] = ref.model.value(batch["obs"])
+    m_ref = ref.update(batch)
+    fast.update(batch)
+    assert m_ref["clip_fraction"] == 0.0
+    assert max_diff([p.grad for p in ref.model.parameters()], numpy_grads(fast)) <= TOL
+
+
+def test_a_gradient_under_the_norm_limit_is_not_scaled():
+    """clip_grad_norm_ leaves a gradient whose norm is below max_grad_norm as it is (coefficient
+    clamped at 1): with the limit 1.5 times the norm, the step is torch's."""
+    ref, fast, batch = pair(2, max_grad_norm=1e9)
+    norm = ref.update(batch)["grad_norm"]
+    ref, fast, batch = pair(2, max_grad_norm=1.5 * norm)
+    ref.update(batch), fast.update(batch)
+    assert max_diff(list(ref.model.parameters()), list(fast.model.parameters())) <= TOL
+
+
+def test_a_minibatch_of_two_normalises_its_advantages_as_torch():
+    ref, fast, batch = pair(0, minibatch_size=2, max_grad_norm=1e9, normalize_adv=True)
+    small = {k: v[:2] for k, v in batch.items()}
+    ref.update(small), fast.update(small)
+    assert max_diff([p.grad for p in ref.model.parameters()], numpy_grads(fast)) <= TOL
+
+
+def test_the_numpy_update_works_in_float32_throughout():
+    """Every array the update keeps (parameters, gradients, Adam's state, layer and loss buffers, the
+    packed batch) is float32, as the torch model it stands for: a float64 buffer would change the
+    bits of every step and double the memory, and no comparison within float32 rounding would see it."""
+    import numpy as np
+
+    _, fast, batch = pair(1, max_grad_norm=0.5)
+    fast.update(batch)
+    np_ppo = fast._np
+    arrays = [v for v in vars(np_ppo).values() if isinstance(v, np.ndarray)]
+    for holder in (np_ppo._loss_bufs, np_ppo._ones, np_ppo._rows, np_ppo.actor._bufs, np_ppo.critic._bufs):
+        stack = list(holder.values())
+        while stack:
+            v = stack.pop()
+            if isinstance(v, dict):
+                stack += list(v.values())
+            elif isinstance(v, list):
+                stack += v
+            elif isinstance(v, np.ndarray):
+                arrays.append(v)
+    arrays.append(np_ppo.pack(batch))
+    assert len(arrays) > 20
+    assert {a.dtype.name for a in arrays} <= {"float32", "bool"}, {a.dtype.name for a in arrays}
+
+
+@pytest.mark.parametrize(
+    "change, says",
+    [
+        (dict(amsgrad=True), "plain Adam over all the model's parameters in one group"),
+        (dict(maximize=True), "plain Adam over all the model's parameters in one group"),
+        (dict(weight_decay=0.01), "plain Adam over all the model's parameters in one group"),
+    ],
+)
+def test_an_optimiser_other_than_plain_adam_is_refused(change, says):
+    from quadpilot.train.numpy_ppo import NumpyPPO
+
+    ppo = make("torch")
+    opt = torch.optim.Adam(ppo.model.parameters(), lr=1e-3, **change)
+    with pytest.raises(ValueError, match=says):
+        NumpyPPO(ppo.model, opt)
+
+
+def test_adam_over_part_of_the_model_or_sgd_or_float64_is_refused():
+    from quadpilot.train.numpy_ppo import NumpyPPO
+
+    ppo = make("torch")
+    params = list(ppo.model.parameters())
+    for opt in (torch.optim.Adam(params[:-1], lr=1e-3), torch.optim.SGD(params, lr=1e-3)):
+        with pytest.raises(ValueError, match=r"^the NumPy update implements plain Adam over all"):
+            NumpyPPO(ppo.model, opt)
+    two_groups = torch.optim.Adam([{"params": params[:2]}, {"params": params[2:]}], lr=1e-3)
+    with pytest.raises(ValueError, match=r"^the NumPy update implements plain Adam over all"):
+        NumpyPPO(ppo.model, two_groups)
+    ppo.model.double()
+    with pytest.raises(ValueError, match=r"^the NumPy update works in float32$"):
+        NumpyPPO(ppo.model, torch.optim.Adam(ppo.model.parameters(), lr=1e-3))
+    with pytest.raises(ValueError, match=r"^the NumPy update is for the feed-forward ActorCritic, got Linear$"):
+        NumpyPPO(torch.nn.Linear(2, 2), torch.optim.Adam(torch.nn.Linear(2, 2).parameters()))
+
+
+@pytest.mark.parametrize(
+    "edit, says",
+    [
+        (lambda a: a.__setitem__(1, torch.nn.ELU(alpha=0.5)), "ELU\\(alpha=1\\) between two; found ELU"),
+        (lambda a: a.__setitem__(1, torch.nn.ReLU()), "one kind of activation between each two"),
+        (lambda a: a.append(torch.nn.Tanh()), "one kind of activation between each two"),
+        (lambda a: a.__setitem__(0, torch.nn.Tanh()), "Linear layers with one Tanh, ReLU or ELU"),
+    ],
+    ids=["elu-alpha", "two-kinds", "ends-in-activation", "no-linear-first"],
+)
+def test_a_network_the_numpy_update_cannot_run_is_refused_naming_it(edit, says):
+    """ELU with alpha ≠ 1, two kinds of activation, an activation last, an activation where a Linear
+    belongs: each refused with what was found."""
+    from quadpilot.train.numpy_ppo import NumpyPPO
+
+    ppo = make("torch", actor_hidden=(16, 16), activation="tanh")
+    edit(ppo.model.actor)
+    with pytest.raises(ValueError, match=says):
+        NumpyPPO(ppo.model, torch.optim.Adam(ppo.model.parameters(), lr=1e-3))
+
+
+def test_a_network_without_hidden_layers_runs():
+    """One Linear, no activation: the kind defaults (and is not used); gradients are torch's."""
+    ref, fast, batch = pair(0, actor_hidden=(), critic_hidden=(), max_grad_norm=1e9)
+    ref.update(batch), fast.update(batch)
+    assert fast._np.actor.kind == "tanh" and len(fast._np.actor.layers) == 1
+    assert max_diff([p.grad for p in ref.model.parameters()], numpy_grads(fast)) <= TOL
