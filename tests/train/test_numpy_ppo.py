@@ -320,13 +320,14 @@ def test_a_minibatch_of_two_normalises_its_advantages_as_torch():
     assert max_diff([p.grad for p in ref.model.parameters()], numpy_grads(fast)) <= TOL
 
 
-def test_the_numpy_update_works_in_float32_throughout():
+@pytest.mark.parametrize("activation", ["tanh", "elu"])
+def test_the_numpy_update_works_in_float32_throughout(activation):
     """Every array the update keeps (parameters, gradients, Adam's state, layer and loss buffers, the
     packed batch) is float32, as the torch model it stands for: a float64 buffer would change the
     bits of every step and double the memory, and no comparison within float32 rounding would see it."""
     import numpy as np
 
-    _, fast, batch = pair(1, max_grad_norm=0.5)
+    _, fast, batch = pair(1, max_grad_norm=0.5, activation=activation)
     fast.update(batch)
     np_ppo = fast._np
     arrays = [v for v in vars(np_ppo).values() if isinstance(v, np.ndarray)]
