@@ -86,3 +86,23 @@ def test_without_quadratic_drag_the_wind_changes_nothing():
     still = dynamics.step(s, np.zeros((1, 4)), np.zeros((1, 4)), params, DT)
     windy = dynamics.step(s, np.zeros((1, 4)), np.zeros((1, 4)), params, DT, wind=np.array([[4.0, 0.0, 0.0]]))
     assert still[0].tobytes() == windy[0].tobytes()
+
+
+def test_a_wind_of_the_wrong_shape_is_refused_naming_it():
+    v = dataclasses.replace(load_vehicle_file(HUMMINGBIRD), c_dx=0.005)
+    params = ParamBatch.from_preset(v, 2)
+    s, w = np.zeros((12, 2)), np.zeros((4, 2))
+    with pytest.raises(ValueError, match=r"wind must have shape \(2, 3\) \(m/s, world ENU\), got \(3,\)"):
+        dynamics.Stepper(2, 4, np.float64).step(s, w, w.copy(), params, 0.01, wind=np.zeros(3))
+
+
+def test_the_stepper_takes_one_substep_of_the_control_period_by_default():
+    v = load_vehicle_file(HUMMINGBIRD)
+    params = ParamBatch.from_preset(v, 1)
+    s0 = np.zeros((1, 12))
+    s0[0, Z], s0[0, ATT] = 5.0, (0.3, -0.2, 0.1)
+    u = np.full((1, 4), 0.6)
+    want, _ = dynamics.step(s0, u, u, params, dynamics.DT, substeps=1)
+    s, w = np.array(s0.T, order="C"), np.array(u.T, order="C")  # copies: the rows are advanced in place
+    dynamics.Stepper(1, 4, np.float64).step(s, w, np.array(u.T, order="C"), params)
+    assert s.T.tobytes() == want.tobytes()
