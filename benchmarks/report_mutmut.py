@@ -51,7 +51,7 @@ LABELS = {
     "ppo_update": "`train/ppo.py`, `PPO.update` and the variants' `_gradient_step` (the losses)",
     "numpy_ppo": "`train/numpy_ppo.py` (the update every MLP trains with)",
     "dynamics": "`core/dynamics.py`",
-    "stepper": "`core/dynamics.py`, the in-place `Stepper` (of the row above)",
+    "stepper": "`core/dynamics.py`, the in-place `Stepper` and its constants",
     "mixer": "`core/mixer.py`",
     "core_frames": "`core/frames.py`",
     "normalize": "`core/normalize.py`",
