@@ -78,11 +78,12 @@ def _substep(s, w, u, d, h: float, ext: tuple | None = None, air: list | None = 
     thrust, tx, ty, tz = d.wrench(f)  # N, and N·m in body FLU (module docstring)
     if ext is not None and ext[1] is not None:  # external moment, body FLU
         tx, ty, tz = tx + ext[1][0], ty + ext[1][1], tz + ext[1][2]
-    aero_acc = None
-    if d.rotor_aero:  # core.rotor_aero's terms, at the start of the substep
-        att, vel, rates = np.stack([phi, th, psi]), np.stack([vx, vy, vz]), np.stack([p, q, r])
-        aero_acc, moment = dynamics._rotor_aero_terms(att, vel, rates, np.stack(w), air, d)
-        tx, ty, tz = tx + moment[0], ty + moment[1], tz + moment[2]
+    air_acc = None
+    if d.air_terms:  # core.dynamics._air_terms: RotorPy's drag and rotor aerodynamics, from this state
+        trig = (np.sin(phi), np.sin(th), np.sin(psi)), (np.cos(phi), np.cos(th), np.cos(psi))
+        air_acc, moment = dynamics._air_terms(*trig, np.stack([vx, vy, vz]), np.stack([p, q, r]), np.stack(w), air, d)
+        if moment is not None:
+            tx, ty, tz = tx + moment[0], ty + moment[1], tz + moment[2]
 
     # Euler's rotational equation I·ω̇ = τ − ω × (I·ω), diagonal I.
     p1 = p + h * (tx - d.izz_iyy * q * r) * d.inv_ixx
@@ -110,21 +111,8 @@ def _substep(s, w, u, d, h: float, ext: tuple | None = None, air: list | None = 
         ax = ax - d.drag_over_m * vx
         ay = ay - d.drag_over_m * vy
         az = az - d.drag_over_m * vz
-    if d.quadratic_drag:  # RotorPy's parasitic drag: D_body = −|v_a|·diag(c)·v_a, v_a = Rᵀ(v − wind)
-        rot = (
-            (cpsi * cth, cpsi * sth * sphi - spsi * cphi, cpsi * sth * cphi + spsi * sphi),
-            (spsi * cth, spsi * sth * sphi + cpsi * cphi, spsi * sth * cphi - cpsi * sphi),
-            (-sth, cth * sphi, cth * cphi),
-        )
-        a = (vx, vy, vz) if air is None else (vx - air[0], vy - air[1], vz - air[2])
-        speed = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-        vb = [rot[0][j] * a[0] + rot[1][j] * a[1] + rot[2][j] * a[2] for j in range(3)]
-        db = [vb[j] * d.c_over_m[j] * speed for j in range(3)]
-        ax = ax - rot[0][0] * db[0] - rot[0][1] * db[1] - rot[0][2] * db[2]
-        ay = ay - rot[1][0] * db[0] - rot[1][1] * db[1] - rot[1][2] * db[2]
-        az = az - rot[2][0] * db[0] - rot[2][1] * db[1] - rot[2][2] * db[2]
-    if aero_acc is not None:
-        ax, ay, az = ax + aero_acc[0], ay + aero_acc[1], az + aero_acc[2]
+    if air_acc is not None:
+        ax, ay, az = ax + air_acc[0], ay + air_acc[1], az + air_acc[2]
     if ext is not None and ext[0] is not None:  # external force / m, world ENU
         ax, ay, az = ax + ext[0][0], ay + ext[0][1], az + ext[0][2]
     hh = 0.5 * h * h

@@ -49,8 +49,9 @@ v_a = Rᵀ(v − wind) (rotorpy/vehicles/multirotor.py, `compute_body_wrench`), 
 start of the substep as for the thrust; `wind` (N, 3) world ENU gives the air's velocity (None:
 still air). RotorPy's rotor aerodynamics (rotor drag, induced inflow, translational lift, blade
 flapping: `core.rotor_aero`) act on the same airspeed, with the rotor speeds and body rates at the
-start of the substep. A vehicle without these terms steps with the same operations as before they
-existed; one with rotor aerodynamics allocates its terms' arrays (`_rotor_aero_terms`).
+start of the substep. `_air_terms` computes both from one R and one body airspeed. A vehicle
+without these terms steps with the same operations as before they existed; one with them allocates
+their arrays.
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ import math
 
 import numpy as np
 
+from .frames import euler_to_rotmat_rows, world_to_body_rows
 from .mixer import wrench_function, wrench_into_function
 from .params import NUM_MOTORS as NUM_MOTORS  # re-exported: the rotor count the contract carries
 from .params import ParamBatch
@@ -203,31 +205,36 @@ class _Derived:
             self.rotor_x = c(lay[:, 0:1] * p.arm[None, :])  # (M, N) m, body FLU
             self.rotor_y = c(lay[:, 1:2] * p.arm[None, :])
             self.aero = tuple(c(a) for a in (p.k_d, p.k_z, p.k_h, p.k_flap))
+        self.air_terms = self.quadratic_drag or self.rotor_aero
 
 
-def _rotor_aero_terms(att, vel, rates, w, air, d: _Derived) -> tuple[np.ndarray, np.ndarray]:
-    """(acceleration (3, N) world ENU, moment (3, N) body FLU) of `core.rotor_aero` for rows of the
-    attitude, velocity, body rates, normalised rotor speeds w (M, N) and the air's velocity (None:
-    still air), at the start of a substep. Allocating: only a vehicle with these terms pays for them."""
-    sphi, sth, spsi = np.sin(att)
-    cphi, cth, cpsi = np.cos(att)
-    rot = np.array(  # R = Rz(ψ)·Ry(θ)·Rx(φ), body → world
-        [
-            [cpsi * cth, cpsi * sth * sphi - spsi * cphi, cpsi * sth * cphi + spsi * sphi],
-            [spsi * cth, spsi * sth * sphi + cpsi * cphi, spsi * sth * cphi - cpsi * sphi],
-            [-sth, cth * sphi, cth * cphi],
-        ]
-    )
-    rel = vel if air is None else vel - air
-    body_air = np.einsum("jin,jn->in", rot, rel)  # Rᵀ(v − wind)
-    force, moment = rotor_aero_wrench(body_air, rates, w * d.omega_max, d.rotor_x, d.rotor_y, *d.aero)
-    return np.einsum("ijn,jn->in", rot, force) * d.inv_m, moment
+def _air_terms(sin, cos, vel, rates, w, air, d: _Derived) -> tuple[np.ndarray, np.ndarray | None]:
+    """(acceleration (3, N) world ENU, moment (3, N) body FLU or None) of the air on the airframe:
+    RotorPy's parasitic drag and its rotor aerodynamics (module docstring), both on the body airspeed
+    v_a = Rᵀ(v − wind), from the sines and cosines of the attitude (rows, as `frames.
+    euler_to_rotmat_rows` takes them), the velocity, body rates and normalised rotor speeds w (M, N)
+    at the start of a substep and the air's velocity (None: still air). Allocating: only a vehicle
+    with these terms pays for them."""
+    n = vel.shape[-1]
+    rot = euler_to_rotmat_rows(sin, cos, np.empty((3, 3, n), vel.dtype), np.empty(n, vel.dtype))
+    body_air = world_to_body_rows(rot, vel if air is None else vel - air, np.empty((3, n), vel.dtype))
+    acc = np.zeros_like(body_air)  # body FLU, over the mass
+    moment = None
+    if d.quadratic_drag:  # −|v_a|·diag(c)·v_a / m
+        speed = np.sqrt(body_air[0] * body_air[0] + body_air[1] * body_air[1] + body_air[2] * body_air[2])
+        acc -= d.c_over_m * body_air * speed
+    if d.rotor_aero:
+        force, moment = rotor_aero_wrench(body_air, rates, w * d.omega_max, d.rotor_x, d.rotor_y, *d.aero)
+        acc += force * d.inv_m
+    return np.einsum("ijn,jn->in", rot, acc), moment
 
 
 class Stepper:
     """`step` in place, for a batch stepped every control period: the state and rotor rows are
     advanced where they lie and every intermediate lives in rows allocated here once, so a step
-    allocates no array (`train.envs.QuadBatch` steps this way).
+    allocates no array (`train.envs.QuadBatch` steps this way); a vehicle with RotorPy's drag or rotor
+    aerodynamics allocates those terms' arrays (`_air_terms`). The state, rotor and command rows must
+    not share memory.
 
     The arithmetic is `_substep`'s, operation for operation and in the same order, each NumPy ufunc
     writing into a buffer instead of a new array: a ufunc computes the same bits wherever it writes,
@@ -326,12 +333,11 @@ class Stepper:
             mom = self.mom_ext
             np.copyto(mom, torque.T, casting="unsafe")
         air = None
-        if wind is not None and (d.quadratic_drag or d.rotor_aero):  # the terms that read the air's velocity
+        if wind is not None and d.air_terms:  # the terms that read the air's velocity
             wind = np.asarray(wind)
             if wind.shape != (n, 3):
                 raise ValueError(f"wind must have shape ({n}, 3) (m/s, world ENU), got {wind.shape}")
-            air = self._scratch("wind", 3)
-            np.copyto(air, wind.T, casting="unsafe")
+            air = np.ascontiguousarray(wind.T, dtype=self.dtype)
         clipped = u if d.lag else w  # without a lag the rotor speed is the clipped command (w = u)
         _clip(u, k.u_min, 1.0, clipped)
         if armed is not None:  # motors off command 0, below any idle speed (module docstring)
@@ -341,63 +347,6 @@ class Stepper:
             np.copyto(clipped, 0.0, where=~armed.astype(bool))
         for i in range(substeps):
             self._substep(s, w, u, d, k, acc, mom, trig if i == 0 else None, air)
-
-    def _scratch(self, name: str, k: int) -> np.ndarray:
-        """Rows (k, N) made on first use, for the terms most batches never step (quadratic drag)."""
-        buf = self.__dict__.get("_buf_" + name)
-        if buf is None:
-            buf = self.__dict__["_buf_" + name] = np.empty((k, self.n), self.dtype)
-        return buf
-
-    def _quadratic_drag(self, x, vel, air, sin, cos, za, k: _StepperConstants, t1) -> None:
-        """x += R·(−|v_a|·c/m ∘ v_a) with v_a = Rᵀ(v − wind): RotorPy's parasitic drag over the mass
-        (module docstring), R the body → world rotation of the Euler angles whose sines and cosines
-        are `sin`, `cos` and whose third column is `za`."""
-        mul, add, sub = np.multiply, np.add, np.subtract
-        (sphi, sth, spsi), (cphi, cth, cpsi) = sin, cos
-        rot = self._scratch("rot", 9)  # R by rows: R00 R01 R02 R10 R11 R12 R20 R21 R22
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
-        mul(cpsi, cth, r00)  # R00 = cψ·cθ
-        mul(cpsi, sth, r01)  # R01 = cψ·sθ·sφ − sψ·cφ
-        mul(r01, sphi, r01)
-        mul(spsi, cphi, t1)
-        sub(r01, t1, r01)
-        mul(spsi, cth, r10)  # R10 = sψ·cθ
-        mul(spsi, sth, r11)  # R11 = sψ·sθ·sφ + cψ·cφ
-        mul(r11, sphi, r11)
-        mul(cpsi, cphi, t1)
-        add(r11, t1, r11)
-        np.negative(sth, r20)  # R20 = −sθ
-        mul(cth, sphi, r21)  # R21 = cθ·sφ
-        np.copyto(r02, za[0])
-        np.copyto(r12, za[1])
-        np.copyto(r22, za[2])
-        a = self._scratch("air", 3)  # v − wind
-        if air is None:
-            np.copyto(a, vel)
-        else:
-            sub(vel, air, a)
-        speed = self._scratch("speed", 1)[0]  # |v_a| = |v − wind| (a rotation keeps the length)
-        mul(a[0], a[0], speed)
-        mul(a[1], a[1], t1)
-        add(speed, t1, speed)
-        mul(a[2], a[2], t1)
-        add(speed, t1, speed)
-        np.sqrt(speed, speed)
-        vb = self._scratch("body_air", 3)  # v_a in the body frame: Rᵀ(v − wind)
-        for j in range(3):
-            mul(rot[j], a[0], vb[j])
-            mul(rot[3 + j], a[1], t1)
-            add(vb[j], t1, vb[j])
-            mul(rot[6 + j], a[2], t1)
-            add(vb[j], t1, vb[j])
-        for j in range(3):  # D/m in the body frame: −|v_a|·(c_j/m)·v_a,j
-            mul(vb[j], k.c_over_m[j], vb[j])
-            mul(vb[j], speed, vb[j])
-        for i in range(3):  # x_i −= Σ_j R_ij·|v_a|·(c_j/m)·v_a,j
-            for j in range(3):
-                mul(rot[3 * i + j], vb[j], t1)
-                sub(x[i], t1, x[i])
 
     def _substep(self, s, w, u, d: _Derived, k: _StepperConstants, acc, mom, trig, air=None) -> None:
         """`_substep` in place; each comment gives the line of `_substep` the calls below it compute."""
@@ -415,10 +364,15 @@ class Stepper:
         torque = self.wrench[1:4]
         if mom is not None:  # tx, ty, tz = tx + m_x, ...
             add(torque, mom, torque)
-        aero_acc = None
-        if d.rotor_aero:  # RotorPy's rotor aerodynamics: a moment now, a force with the others below
-            aero_acc, aero_moment = _rotor_aero_terms(att, vel, rates, w, air, d)
-            add(torque, aero_moment, torque)
+        air_acc = None
+        if d.air_terms:  # the air on the airframe at the start of the substep: a moment now, a force below
+            if trig is None:  # the sines and cosines of the attitude (not advanced yet), for both
+                np.sin(att, self.sin)
+                np.cos(att, self.cos)
+                trig = (self.sin, self.cos, None)
+            air_acc, air_moment = _air_terms(trig[0], trig[1], vel, rates, w, air, d)
+            if air_moment is not None:
+                add(torque, air_moment, torque)
 
         # p1 = p + h·(tx − izz_iyy·q·r)·inv_ixx; q1 = q + h·(ty − ixx_izz·p·r)·inv_iyy; r1 alike
         gyro = self.gyro
@@ -486,11 +440,8 @@ class Stepper:
         if d.drag:  # ax = ax − drag_over_m·vx, ...
             mul(k.drag_over_m, vel, blk)
             sub(x, blk, x)
-        if d.quadratic_drag:
-            trig_rows = (self.sin, self.cos) if trig is None else trig[:2]
-            self._quadratic_drag(x, vel, air, *trig_rows, za, k, t1)
-        if aero_acc is not None:
-            add(x, aero_acc, x)
+        if air_acc is not None:  # ax = ax + the air's force / m, ...
+            add(x, air_acc, x)
         if acc is not None:  # ax = ax + force_x/m, ...
             add(x, acc, x)
         mul(k.h, vel, blk)  # x1 = x + h·vx + hh·ax, ...
@@ -515,7 +466,6 @@ class _StepperConstants:
         self.u_min = d.u_min if np.isscalar(d.u_min) else rows(d.u_min[:, 0], m)
         self.decay = rows(d.decay, m) if d.lag else None
         self.drag_over_m = rows(d.drag_over_m, 3) if d.drag else None
-        self.c_over_m = d.c_over_m if d.quadratic_drag else None
         self.izz_iyy, self.ixx_izz, self.iyy_ixx = d.izz_iyy, d.ixx_izz, d.iyy_ixx
         self.inv_inertia = np.stack([d.inv_ixx, d.inv_iyy, d.inv_izz])
         self.h, self.half, self.hh = t(h), t(0.5), t(0.5 * h * h)
