@@ -52,7 +52,7 @@ from quadpilot.link.frames import Home
 
 from . import commands, mission_protocol, streams
 from .commands import ACCEPTED, DENIED, TEMP_REJECTED, enu_yaw
-from .modes import HOLD, MISSION, MODE_NAMES, POSCTL, Land, Loiter, Mission, Mode, Return
+from .modes import HOLD, MISSION, MODE_NAMES, POSCTL, Land, Mission, Mode, Return
 from .navigator import Navigator
 from .param_protocol import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable
 from .setpoint import LandDetector, LandLimits, Mover
@@ -291,14 +291,10 @@ class Commander:
         self._out.append(self.heartbeat())
 
     def fly(self, mode: Mode) -> None:
-        """Switch to a navigator mode (not Mission: `start_mission`) and fly its legs from the
-        reference; a mission being flown is paused."""
+        """Switch to a navigator mode (not Mission: `start_mission`; not a plain Hold: `hold`) and
+        fly its legs from the reference; a mission being flown is paused."""
         self._leave_mission()
-        legs = mode.legs(self.mover.ref, self.params)
-        if legs is None:
-            self.nav.hold()
-        else:
-            self.nav.start(legs, keep_speed=mode.keep_speed)
+        self.nav.start(mode.legs(self.mover.ref, self.params), keep_speed=mode.keep_speed)
         self.set_mode(mode.custom_mode)
 
     def hold(self, mode: tuple = HOLD) -> None:
@@ -372,11 +368,9 @@ class Commander:
         if what == "finished":
             self.text("Mission finished")
             if not self.landed:
-                self.nav.hold()
-                self.set_mode(HOLD)
+                self.hold()
         elif what == "wait":  # wait here until told to go on (DO_SET_MODE MISSION)
-            self.nav.hold()
-            self.set_mode(HOLD)
+            self.hold()
         else:
             self.nav.start(mission.next_legs(self.mover.ref, self.home, self.params), keep_speed=True)
             self._item_started(mission.seq)
@@ -479,7 +473,7 @@ class Commander:
             elif act == NAV_DLL_LAND:
                 self.fly(Land(self.mover.ref[0:2]))
             else:  # NAV_DLL_HOLD (or Return once on the ground)
-                self.fly(Loiter())
+                self.hold()
             self.text(f"Failsafe activated: {MODE_NAMES[self.mode]}", M.MAV_SEVERITY_CRITICAL)
         if not self.armed:
             self.failsafe = None

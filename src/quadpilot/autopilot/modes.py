@@ -45,8 +45,8 @@ class Mode:
     name: ClassVar[str]
     keep_speed: ClassVar[bool] = False
 
-    def legs(self, ref: np.ndarray, params) -> list[Leg] | None:
-        """The legs to fly, or None: stop the reference and hold it."""
+    def legs(self, ref: np.ndarray, params) -> list[Leg]:
+        """The legs to fly."""
         raise NotImplementedError
 
 
@@ -111,17 +111,18 @@ class Return(Mode):
 
 
 class Loiter(Mode):
-    """Hold (AUTO_LOITER), where PX4 also flies DO_REPOSITION: hold the reference where it is, or fly
-    to `goal` and hold there (the speed a DO_CHANGE_SPEED set carries over, navigator_main.cpp)."""
+    """Hold (AUTO_LOITER), where PX4 also flies DO_REPOSITION: fly to `goal` and hold there (the
+    speed a DO_CHANGE_SPEED set carries over, navigator_main.cpp). Holding where the reference is
+    needs no legs: `Commander.hold`."""
 
     custom_mode, name = (4, 3), "Hold"
     keep_speed = True
 
-    def __init__(self, goal: np.ndarray | None = None) -> None:
+    def __init__(self, goal: np.ndarray) -> None:
         self.goal = goal
 
-    def legs(self, ref=None, params=None) -> list[Leg] | None:
-        return None if self.goal is None else [Leg("move", self.goal, tag="goto")]
+    def legs(self, ref=None, params=None) -> list[Leg]:
+        return [Leg("move", self.goal, tag="goto")]
 
 
 class Mission(Mode):
