@@ -27,6 +27,7 @@ is checked before the simulator starts, and the simulator process never outlives
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -118,6 +119,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="Seconds per episode (of simulated time). Default: 5 (circle: two laps, 12.6 s; success is judged "
         "on the second; --start landed: a cap of 600 s on a flight that ends when landed and disarmed)",
     )
+    p.add_argument(
+        "--maneuver",
+        type=sitl_node.maneuver_flag,
+        default=None,
+        metavar="step[:M]|figure8:V",
+        help="Fly a maneuver from rest at home instead of the task's targets (core.maneuver): a step of M metres "
+        "east (default 1; overshoot, rise and settling time), or PX4 mc_raptor's figure-eight at a peak speed of "
+        "V m/s (tracking error over a lap after a 3 s ramp). A hover-layout policy or RAPTOR.",
+    )
     p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="Seed of the start states. Default: 0")
     p.add_argument("--backend", choices=("onnxruntime", "numpy", "c"), default="numpy", help="Default: numpy")
     mode = p.add_mutually_exclusive_group()
@@ -174,7 +184,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _sim_args(args: argparse.Namespace) -> list[str]:
-    return passed_on_tokens(args)
+    rest = passed_on_tokens(args)
+    if args.maneuver is not None and not args.node_only:  # our simulator: its start; another's is its own
+        given = {t.split("=", 1)[0] for t in rest}
+        rest += [f"{flag}={v}" for flag, v in sitl_node.MANEUVER_START.items() if flag not in given]
+    return rest
 
 
 def _die_with_parent():
@@ -385,6 +399,16 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as e:
             return _bad_flag(f"--vehicle {args.vehicle}: {e}")
     task = args.task or policy.info.task
+    if args.maneuver is not None:
+        if task != "hover" or policy.info.layout.tracks:
+            return _bad_flag(
+                f"--maneuver flies from a hover; {policy_path} is a {policy.info.task} policy (--task {task})"
+            )
+        if sitl_node.commanded(args):
+            return _bad_flag("--maneuver flies its own targets; --start landed takes the ground station's")
+        if args.node_only and args.home is not None and args.target is None:
+            return _bad_flag("--maneuver with --home needs --target: the maneuver is flown about it")
+        args.maneuver = dataclasses.replace(args.maneuver, dt=policy.info.control_period_s)
     if args.node_only and (task == "circle" or policy.info.layout.tracks):
         return _bad_flag(f"--node-only flies to a fixed --target; {policy_path} is a {policy.info.task} policy")
     if (task == "circle") != (policy.info.layout.tracks):
@@ -443,7 +467,10 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
     commanded = sitl_node.commanded(args)
     if commanded and args.lockstep:
         print(sitl_node.LOCKSTEP_COMMANDED_WARNING, file=sys.stderr)
-    duration = args.duration or (sitl_node.COMMANDED_DURATION_S if commanded else default_duration_s(task))
+    maneuver = args.maneuver
+    duration = args.duration or (
+        sitl_node.COMMANDED_DURATION_S if commanded else maneuver.duration_s if maneuver else default_duration_s(task)
+    )
     monitor = SafetyMonitor(policy)
     sim = tlog = proxy = None
     logs = []
@@ -480,7 +507,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
         try:
             for k in range(args.episodes):
                 mission = plan_episode(task, args.seed, k, policy.info.control_period_s)
-                targets = None if commanded else mission.target_at  # commanded: the ground station's
+                targets = None if commanded else (maneuver or mission).target_at  # commanded: the ground station's
                 logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap, targets=targets))
         except NodeError as e:
             print(f"quad-sitl: error: {e}", file=sys.stderr)
@@ -499,6 +526,8 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
             sim.stop()
     summary = sitl_node.summarise(logs, policy.info.control_period_s, task)
     summary["task"] = task
+    if maneuver is not None:
+        summary.update(sitl_node.maneuver_summary(maneuver, logs, policy.info.control_period_s))
     summary["policy"] = str(policy_path)
     summary["backend"] = args.backend
     summary["monitor_events"] = dict(monitor.events)
@@ -507,6 +536,10 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
     if commanded:
         summary["commanded"] = sitl_node.commanded_summary(logs)
     sitl_node.print_summary(summary, policy_path)
+    if maneuver is not None:
+        from quadpilot.core.maneuver import summary_line
+
+        print(summary_line(summary))
     try:
         if args.json:
             atomic_write(args.json, lambda f: f.write((json.dumps(summary, indent=2) + "\n").encode()))

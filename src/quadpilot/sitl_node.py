@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import sys
@@ -369,9 +370,13 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
     except ImpairSpecError as e:
         print(f"quad-sitl: error: {e}", file=sys.stderr)
         return 2
+    maneuver = targets = None
+    if args.maneuver is not None:  # about --target, else about where the flight started (the local origin)
+        maneuver = dataclasses.replace(args.maneuver, home=tuple(args.target) if args.target else (0.0, 0.0, 0.0))
+        targets = maneuver.target_at
     cfg = NodeConfig(
         connect=connect,
-        duration_s=args.duration or default_duration_s("hover"),
+        duration_s=args.duration or (maneuver.duration_s if maneuver else default_duration_s("hover")),
         lockstep=args.lockstep,
         gcs=gcs,
         signing_key=key,
@@ -386,7 +391,7 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
             from quadpilot.link.tlog import TlogWriter
 
             tlog = TlogWriter(args.tlog)
-        log = Node(cfg).fly(monitor, tap=None if tlog is None else tlog.tap)
+        log = Node(cfg).fly(monitor, tap=None if tlog is None else tlog.tap, targets=targets)
     except NodeError as e:
         print(f"quad-sitl: error: {e}", file=sys.stderr)
         return 1
@@ -405,6 +410,11 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
         print(impair_line(s["link_impair"]))
     s["home_source"] = "--home" if args.home is not None else "first valid position"
     print(summary_line(s))
+    if maneuver is not None:
+        s.update(maneuver_summary(maneuver, [log], period))
+        from quadpilot.core.maneuver import summary_line as maneuver_line
+
+        print(maneuver_line(s))
     for flag, path, write in (
         ("--json", args.json, lambda p: atomic_write(p, lambda f: f.write((json.dumps(s, indent=2) + "\n").encode()))),
         ("--trace", args.trace, lambda p: write_trace(log, p)),
@@ -434,6 +444,37 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
             f"{s['hand_backs']} hand-backs): less than {MIN_POLICY_FRACTION:.0%}"
         )
     return code
+
+
+def maneuver_summary(maneuver, logs, period: float) -> dict:
+    """`core.maneuver.summarise` of the flights in `logs`."""
+    from quadpilot.core.maneuver import summarise
+
+    return summarise(
+        maneuver,
+        [
+            (
+                np.asarray(log.states, np.float64).reshape(-1, 12),
+                np.asarray(log.targets, np.float64).reshape(-1, 3),
+                log.step_s if math.isfinite(log.step_s) else period,
+            )
+            for log in logs
+        ],
+    )
+
+
+def maneuver_flag(text: str):
+    """--maneuver's type: `core.maneuver.parse_maneuver`, its refusal as a usage error."""
+    from quadpilot.core.maneuver import parse_maneuver
+
+    try:
+        return parse_maneuver(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+MANEUVER_START = {"--init-pos-radius": "0", "--init-vel": "0", "--init-tilt": "0"}
+"""A maneuver starts at rest, level, at home: these simulator flags unless given."""
 
 
 # --- quad-sitl's summary of episodes flown against its own simulator ------------------------------

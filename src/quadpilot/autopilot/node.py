@@ -494,6 +494,8 @@ class _Flight:
                 target, target_vel = self.fixed, None
             else:  # the target at this simulated time, in the policy's steps
                 target, target_vel = self.targets(round((t_us - self.first_us) / self.period_us))
+                if not self.track and self.own_observation is None:  # a layout without the target's velocity
+                    target_vel = None
             self.target = target
             if run:
                 heading = heading_within_reach(float(s[YAW]), heading) if self.heading_frame else None
