@@ -9,19 +9,21 @@ Controllers, the same flights for each:
 - `raptor`: the RAPTOR foundation policy zero-shot (`quad-sitl raptor:foundation --vehicle AIRFRAME`),
   through the px4-raptor contract code, its outputs mapped to the airframe's rotors by their corners
   (`core.px4_raptor.policy_order`), so that a failure is RAPTOR's and not a motor mapping's;
-- `ours`: the policy trained here for that airframe (`OURS`: the shipped MLP trained from its vehicle
-  file, `quad-train --vehicle`), where one exists; an airframe without one has no row.
-Flights (`quad-sitl`, 100 Hz, 10 episodes of 5 s each, seeded): `hover` (random starts within 1 m,
-commanded headings within 30°, rotors anywhere from rest to hover); `wind` (a steady 2 m/s wind and
-1 m/s gusts); `mass+30%`, `mass-30%` (the plant heavier or lighter than the vehicle file says: what a
-user gets wrong), `thrust+20%`, `thrust-20%` (the rotors' thrust coefficient off by as much). Per
-flight: success (the hover rule: mean error over the last 2 s at most 5 cm, yaw rules), the mean
-error over the last 2 s, the worst heading error, crashes.
+- `ours`: a policy trained in this run from the airframe's vehicle file alone (`TRAIN`: `quad-train
+  --task hover --vehicle FILE`, then `quad-export`, which checks the ONNX file against torch); the
+  wall time from the file to the checked policy.onnx is recorded per airframe (`ours_training`), with
+  the training's own evaluation. `--policies DIR` keeps the policies (DIR/AIRFRAME/); `--reuse` flies
+  the ones already there instead of training again (their recorded time is kept).
+Flights (`quad-sitl`, 100 Hz, seeded): `hover` (random starts within 1 m, commanded headings within
+30°, rotors anywhere from rest to hover; 5 s); `wind` (a steady 2 m/s wind and 1 m/s gusts);
+`mass+30%`, `mass-30%` (the plant heavier or lighter than the vehicle file says: what a user gets
+wrong), `thrust+20%`, `thrust-20%` (the rotors' thrust coefficient off by as much); `step` (1 m from
+rest: overshoot, settling time); `figure8 V` (PX4 mc_raptor's figure-eight at a peak speed of V m/s,
+`core.maneuver`: tracking error over a lap). Per flight: success (the hover rule: mean error over
+the last 2 s at most 5 cm, yaw rules), the mean error over the last 2 s, the worst heading error,
+crashes, and what the maneuver measures.
 
-Not here yet: RotorPy's side, the step and figure-eight flights, and a generalist policy.
-`rotorpy_hummingbird`'s `ours` is models/hover_hummingbird, trained on tests/data/vehicles/
-rotorpy_hummingbird.toml (RotorPy's Hummingbird without its drag and rotor aerodynamics, which the
-model did not have then); the set's file has them.
+Not here yet: RotorPy's side, and a generalist policy.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import platform
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,12 +48,9 @@ AIRFRAMES = {
 }
 """name → what `--vehicle` takes (a shipped name or a vehicle file): two shipped presets and the
 airframe set of benchmarks/airframes/ (docs/raptor.md)."""
-OURS = {
-    "px4_sih_quadx": ROOT / "models/hover_px4_sih/policy.onnx",
-    "rotorpy_hummingbird": ROOT / "models/hover_hummingbird/policy.onnx",
-    "crazyflie": ROOT / "models/hover_crazyflie/policy.onnx",
-}
-"""The policy trained here for an airframe (its command is in its folder's config.json)."""
+TRAIN = ["--task", "hover", "--init-rotor", "random", "--seed", "0", "--total-steps", "2000000"]
+"""quad-train's flags for `ours`, with --vehicle FILE: the shipped hover recipe at 2M steps (1M left
+the racer at 55 % success), rotors from rest to hover at the starts, as the flights start them."""
 FLIGHTS = {
     "hover": [],
     "wind": ["--wind", "2,0,0", "--gust", "1"],
@@ -58,6 +58,10 @@ FLIGHTS = {
     "mass-30%": ["--mass-scale", "0.7"],
     "thrust+20%": ["--motor-scale", "1.2"],
     "thrust-20%": ["--motor-scale", "0.8"],
+    "step": ["--maneuver", "step"],
+    "figure8 1 m/s": ["--maneuver", "figure8:1"],
+    "figure8 2 m/s": ["--maneuver", "figure8:2"],
+    "figure8 4 m/s": ["--maneuver", "figure8:4"],
 }
 EPISODES = 10
 KEPT = (
@@ -67,6 +71,12 @@ KEPT = (
     "max_heading_error_last_2s_deg",
     "max_abs_yaw_rate_last_2s_radps",
     "fallback_steps",
+    "overshoot_pct",
+    "rise_s",
+    "settling_s",
+    "not_settled",
+    "tracking_rms_m",
+    "tracking_max_m",
 )
 
 
@@ -83,7 +93,42 @@ def fly(policy: str, vehicle: str, flight: list[str], tmp: Path, episodes: int =
     return {k: s[k] for k in KEPT if k in s}
 
 
-def run(out: Path, airframes: list[str], episodes: int = EPISODES, merge: bool = False) -> dict:
+def train(vehicle: str, folder: Path, extra: list[str]) -> dict:
+    """`ours` for `vehicle`: quad-train then quad-export into `folder`, timed (s of wall clock)."""
+    t0 = time.perf_counter()
+    cmd = [sys.executable, "-m", "quadpilot.train.cli", *TRAIN, "--vehicle", vehicle, "--out", str(folder), *extra]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    t1 = time.perf_counter()
+    if done.returncode != 0:
+        raise SystemExit(f"airframes: quad-train --vehicle {vehicle} failed: {done.stderr.strip().splitlines()[-1:]}")
+    exported = subprocess.run(
+        [sys.executable, "-m", "quadpilot.export.cli", str(folder / "policy.pt")], capture_output=True, text=True
+    )
+    t2 = time.perf_counter()
+    if exported.returncode != 0:
+        raise SystemExit(f"airframes: quad-export {folder / 'policy.pt'} failed: {exported.stderr.strip()[-300:]}")
+    ev = json.loads((folder / "eval.json").read_text())
+    return {
+        "command": "quad-train " + " ".join([*TRAIN, "--vehicle", vehicle, *extra]) + "; quad-export policy.pt",
+        "train_s": t1 - t0,
+        "export_s": t2 - t1,
+        "file_to_policy_s": t2 - t0,
+        "load_1min_before": os.getloadavg()[0],
+        "eval_success_rate": ev["success_rate"],
+        "eval_mean_final_distance_m": ev["mean_final_distance_m"],
+    }
+
+
+def run(
+    out: Path,
+    airframes: list[str],
+    episodes: int = EPISODES,
+    merge: bool = False,
+    policies: Path | None = None,
+    reuse: bool = False,
+    train_flags: list[str] | None = None,
+    flights: dict | None = None,
+) -> dict:
     """Fly `airframes` and write the JSON; `merge`: into the one at `out`, keeping its other airframes
     (each airframe's entry says when, at which commit and under which load it was flown)."""
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
@@ -94,7 +139,7 @@ def run(out: Path, airframes: list[str], episodes: int = EPISODES, merge: bool =
         "load_1min_before": os.getloadavg()[0],
         "commit": commit,
         "episodes": episodes,
-        "flights": {k: " ".join(v) for k, v in FLIGHTS.items()},
+        "flights": {k: " ".join(v) for k, v in (flights or FLIGHTS).items()},
         "airframes": {},
     }
     if merge and out.is_file():
@@ -105,15 +150,23 @@ def run(out: Path, airframes: list[str], episodes: int = EPISODES, merge: bool =
             rows.setdefault("run", {k: old[k] for k in ("started", "commit", "load_1min_before")})
         data["airframes"] = old["airframes"]
     with tempfile.TemporaryDirectory() as tmp:
+        keep = Path(tmp) / "policies" if policies is None else policies
         for name in airframes:
             vehicle = AIRFRAMES[name]
-            controllers = {"raptor": "raptor:foundation"}
-            if name in OURS:
-                controllers["ours"] = str(OURS[name])
             rows = data["airframes"][name] = {"vehicle": vehicle.replace(str(ROOT) + "/", "")}
             rows["run"] = {"started": data["started"], "commit": commit, "load_1min_before": os.getloadavg()[0]}
-            for controller, policy in controllers.items():
-                rows[controller] = {f: fly(policy, vehicle, args, Path(tmp), episodes) for f, args in FLIGHTS.items()}
+            folder = keep / name
+            made = folder / "policy.onnx"
+            if reuse and made.is_file() and (folder / "training.json").is_file():
+                rows["ours_training"] = json.loads((folder / "training.json").read_text())
+            else:
+                rows["ours_training"] = train(vehicle, folder, train_flags or [])
+                (folder / "training.json").write_text(json.dumps(rows["ours_training"], indent=1) + "\n")
+            print(f"{name} ours trained: {rows['ours_training']}", flush=True)
+            for controller, policy in (("raptor", "raptor:foundation"), ("ours", str(made))):
+                rows[controller] = {
+                    f: fly(policy, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()
+                }
                 for f, r in rows[controller].items():
                     print(f"{name} {controller} {f}: {r}", flush=True)
     data["load_1min_after"] = os.getloadavg()[0]
@@ -129,8 +182,22 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every one.")
     r.add_argument("--episodes", type=int, default=EPISODES)
     r.add_argument("--merge", action="store_true", help="Update these airframes in OUT, keep the others.")
+    r.add_argument("--policies", type=Path, help="Keep the trained policies in DIR/AIRFRAME/. Default: discarded.")
+    r.add_argument("--reuse", action="store_true", help="Fly the policies already in --policies, train the others.")
+    r.add_argument("--train", action="append", default=[], metavar="FLAG", help="More quad-train flags (smoke runs).")
+    r.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help="Default: every one.")
     args = p.parse_args(argv)
-    run(args.out, args.airframe or list(AIRFRAMES), args.episodes, args.merge)
+    flights = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
+    run(
+        args.out,
+        args.airframe or list(AIRFRAMES),
+        args.episodes,
+        args.merge,
+        args.policies,
+        args.reuse,
+        args.train,
+        flights,
+    )
     return 0
 
 
