@@ -1,6 +1,6 @@
 """`quad-sitl --maneuver`: the step and the figure-eight (`core.maneuver`) flown from rest at home in
 our simulator, measured in the summary; RAPTOR is given the figure-eight's velocity (as mc_raptor
-takes the trajectory setpoint's), a hover-layout policy its position only."""
+takes the trajectory setpoint's), a hover-layout policy flies it in the target's frame."""
 
 import json
 
@@ -30,17 +30,18 @@ def test_a_step_starts_at_rest_at_home_and_is_measured(tmp_path, capsys):
     assert all(r > 0.3 for r in first) and s["not_settled"] == 0
 
 
-def test_raptor_is_given_the_figure_eights_velocity_and_a_hover_policy_is_not(tmp_path):
-    """RAPTOR's observation carries the setpoint velocity: with it the figure-eight at 1 m/s is
-    tracked within centimetres. Our hover policy observes the target's position only and trails it
-    (tens of centimetres): the difference is the velocity reaching RAPTOR's observation."""
+def test_raptor_and_a_hover_policy_both_fly_the_figure_eight_with_its_velocity(tmp_path):
+    """RAPTOR's observation carries the setpoint velocity (v − v_sp, as mc_raptor builds it); a
+    hover-layout policy is flown in the moving target's frame, its velocity observed as v − v_target.
+    With that, both track the figure-eight at 1 m/s within centimetres; without it each trails the
+    target by tens of centimetres (RAPTOR 41 cm, ours 45 cm, measured with the velocity withheld)."""
     raptor = _fly(
         tmp_path, "raptor:foundation", "--vehicle", "px4_sih_quadx", "--maneuver", "figure8:1", "--episodes", "1"
     )
     ours = _fly(tmp_path, SIH, "--maneuver", "figure8:1", "--episodes", "1")
     assert raptor["steps"] == ours["steps"] == round((3.0 + 2 * np.pi * np.hypot(2.0, 2.0)) / 0.01)
-    assert raptor["crashes"] == 0 and raptor["tracking_rms_m"] < 0.10
-    assert ours["tracking_rms_m"] > 2 * raptor["tracking_rms_m"]
+    for s in (raptor, ours):
+        assert s["crashes"] == 0 and s["tracking_rms_m"] < 0.10
 
 
 @pytest.mark.parametrize(

@@ -494,8 +494,6 @@ class _Flight:
                 target, target_vel = self.fixed, None
             else:  # the target at this simulated time, in the policy's steps
                 target, target_vel = self.targets(round((t_us - self.first_us) / self.period_us))
-                if not self.track and self.own_observation is None:  # a layout without the target's velocity
-                    target_vel = None
             self.target = target
             if run:
                 heading = heading_within_reach(float(s[YAW]), heading) if self.heading_frame else None
@@ -506,9 +504,10 @@ class _Flight:
                 else:
                     self._fixed_of, tp = target, np.asarray(target, np.float64).tolist()
                     self._fixed_values = tp
-                tv = None if target_vel is None else np.asarray(target_vel, np.float64).tolist()
-                # `core.observation.build_observation` (the function training used) for one state, the same bits
-                own = self.own_observation
+                own = self.own_observation  # (RAPTOR's) or, below, the function training used, for one state
+                tv = [0.0, 0.0, 0.0] if target_vel is None else np.asarray(target_vel, np.float64).tolist()
+                if not self.track and own is None:  # a hover policy: a moving target is followed in its frame
+                    s, tv = s if target_vel is None else [*s[:3], *np.subtract(s[3:6], tv).tolist(), *s[6:]], None
                 obs = observe(s, tp, tv, heading) if own is None else own(s, tp, tv, heading, t_us)
                 cmd = self.held = monitor.act(obs)
                 self.held_source = monitor.source

@@ -2,9 +2,13 @@
 
 Both start at rest at home (hover's (0, 0, 2) m, level, rotors at hover speed) and hand the
 controller a target that moves: `target_at(k)` gives the position and velocity of the target after k
-control steps, world ENU, the same interface as `core.mission.Mission` (a policy that observes the
-target's velocity gets it; RAPTOR's observation, like PX4 mc_raptor's, takes the setpoint velocity;
-a hover-layout policy sees the position only).
+control steps, world ENU, the same interface as `core.mission.Mission`. A policy that observes the
+target's velocity gets it, and RAPTOR's observation takes it as PX4 mc_raptor's does (velocity
+minus setpoint velocity). A hover-layout policy, trained on a target at rest, is flown in the moving
+target's frame (`autopilot.node`): it observes v − v_target where it observed v, which is exact for
+a target at constant velocity (the dynamics do not change with a constant-velocity frame, drag
+aside) and leaves the target's acceleration as the error that remains. Without it a hover policy
+trails the figure-eight by tens of centimetres.
 
 - `Step`: the target jumps `distance` metres east at k = 0 and stays there. Measured: the overshoot
   (how far past the target the vehicle went along the step, metres), the rise time (10 % to 90 % of
