@@ -29,7 +29,9 @@ Not here yet: RotorPy's side, and a generalist policy.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as _dt
+import importlib.util
 import json
 import os
 import platform
@@ -38,6 +40,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SET = ROOT / "benchmarks" / "airframes"
@@ -174,6 +178,94 @@ def run(
     return data
 
 
+ROTORPY_FLIGHTS = {
+    "hover": ["--target=0.6,-0.5,0.55"],
+    "step": ["--maneuver", "step"],
+    "figure8 1 m/s": ["--maneuver", "figure8:1"],
+    "figure8 2 m/s": ["--maneuver", "figure8:2"],
+    "figure8 4 m/s": ["--maneuver", "figure8:4"],
+}
+"""RotorPy's side (rotorpy 3.0.0 PX4Multirotor, the vehicle file's parameters through
+`core.rotorpy_vehicle.rotorpy_params`, 100 Hz, MAVLink 1; tests/sitl/test_rotorpy.py's `fly`): one flight
+each from RotorPy's start, 5 m up, level, at rest with its rotors at rest, home from the first fix.
+`hover`: to a point 0.95 m away (tests/sitl/test_rotorpy.py's target), judged on the last 2 s;
+the maneuvers are flown about the start."""
+
+
+def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path) -> dict:
+    """One flight in RotorPy, measured from RotorPy's own ground truth (its positions brought into
+    the node's local frame: metres from the start, on the node's Earth)."""
+    from quadpilot.core.maneuver import STEP_DISTANCE_M, FigureEight, Step, parse_maneuver
+    from quadpilot.core.mission import SUCCESS_TOLERANCE_M
+
+    # the node flies a maneuver about its home, the start (the local origin)
+    maneuver = (
+        dataclasses.replace(parse_maneuver(flight[1]), home=(0.0, 0.0, 0.0)) if flight[0] == "--maneuver" else None
+    )
+    duration = maneuver.duration_s if maneuver is not None else 5.0
+    node_flags = (*flight, *(("--vehicle", vehicle) if policy.startswith("raptor:") else ()))
+    target = None if maneuver is not None else tuple(float(v) for v in flight[0].split("=")[1].split(","))
+    case = t.RotorPyFlight(Path(policy), 100, 1, 0.05, vehicle=vehicle, duration_s=duration, target=target)
+    case = dataclasses.replace(case, node_flags=node_flags)
+    try:
+        record, summary, _, node = t.fly(case, tmp)
+    except Exception as e:  # the harness's own checks (RotorPy did not finish): a row that says so
+        return {"failed": str(e).strip().splitlines()[0][:300]}
+    rows = record["steps"]
+    scale = np.array([t.ROTORPY_EARTH_RADIUS_M / t.EARTH_RADIUS_M] * 2 + [1.0])
+    p = (np.array([r["x"] for r in rows]) - np.array([0.0, 0.0, t.START_UP_M])) / scale
+    states = np.zeros((len(p), 12))
+    states[:, :3] = p
+    k = round(t.WINDOW_S * 100)
+    out = {
+        "steps": len(rows),
+        "missed_steps": sum(r["reply_t_us"] != r["t_us"] for r in rows),
+        "node_returncode": node.returncode,
+        "fallback_steps": summary.get("fallback_steps"),
+    }
+    if maneuver is None:
+        err = np.linalg.norm(p[-k:] - np.array(target), axis=1).mean()
+        out.update(mean_error_last_2s_m=float(err), success=bool(err <= SUCCESS_TOLERANCE_M))
+    elif isinstance(maneuver, Step):
+        out.update(maneuver.measure(states, 0.01), final_error_m=float(np.linalg.norm(p[-1] - [STEP_DISTANCE_M, 0, 0])))
+    else:
+        assert isinstance(maneuver, FigureEight)
+        # RotorPy's row i is the state after step i, flown on the target of step i: compared with step i + 1's
+        ref = np.array([maneuver.target_at(i + 1)[0] for i in range(len(p))])
+        out.update(maneuver.measure(states, ref, 0.01))
+    return out
+
+
+def run_rotorpy(out: Path, airframes: list[str], policies: Path, flights: list[str] | None = None) -> dict:
+    """RotorPy's side of `airframes` (vehicle files only), RAPTOR and the policies `run` trained into
+    `policies`, written into `out` (the JSON `run` wrote) under each airframe's "rotorpy"."""
+    spec = importlib.util.spec_from_file_location("rotorpy_flight_test", ROOT / "tests/sitl/test_rotorpy.py")
+    t = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(t)
+    data = json.loads(out.read_text())
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    for name in airframes:
+        vehicle = AIRFRAMES[name]
+        if not vehicle.endswith(".toml"):
+            continue
+        rows = data["airframes"][name]
+        side = rows["rotorpy"] = {
+            "run": {
+                "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                "commit": commit,
+                "load_1min_before": os.getloadavg()[0],
+            }
+        }
+        for controller, policy in (("raptor", "raptor:foundation"), ("ours", str(policies / name / "policy.onnx"))):
+            side[controller] = {}
+            for f in flights or ROTORPY_FLIGHTS:
+                with tempfile.TemporaryDirectory() as tmp:
+                    side[controller][f] = rotorpy_flight(t, policy, vehicle, ROTORPY_FLIGHTS[f], Path(tmp))
+                print(f"{name} rotorpy {controller} {f}: {side[controller][f]}", flush=True)
+        out.write_text(json.dumps(data, indent=1) + "\n")  # after each airframe: a long run keeps what it flew
+    return data
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -186,7 +278,15 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--reuse", action="store_true", help="Fly the policies already in --policies, train the others.")
     r.add_argument("--train", action="append", default=[], metavar="FLAG", help="More quad-train flags (smoke runs).")
     r.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help="Default: every one.")
+    rp = sub.add_parser("rotorpy", help="RotorPy's side, into the JSON `run` wrote, with the policies it kept.")
+    rp.add_argument("out", type=Path)
+    rp.add_argument("--policies", type=Path, required=True)
+    rp.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every vehicle file.")
+    rp.add_argument("--flight", action="append", choices=sorted(ROTORPY_FLIGHTS), help="Default: every one.")
     args = p.parse_args(argv)
+    if args.cmd == "rotorpy":
+        run_rotorpy(args.out, args.airframe or list(AIRFRAMES), args.policies, args.flight)
+        return 0
     flights = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
     run(
         args.out,

@@ -1,48 +1,186 @@
-"""The table of docs/raptor.md from benchmarks/airframes.py's JSON:
+"""The tables and the plot of docs/raptor.md from benchmarks/airframes.py's JSON:
 
-    python benchmarks/report_airframes.py docs/bench/airframes.json
+    python benchmarks/report_airframes.py docs/bench/airframes.json                       # the tables
+    python benchmarks/report_airframes.py docs/bench/airframes.json --plot docs/img/airframes.png
 
-One row per airframe and controller, one column per flight: success (of the episodes) and the mean
-error over the last 2 s (of the episodes that did not crash), or why quad-sitl refused to fly."""
+Tables: `holding` (our simulator: hover, wind and the wrong-file flights: success of the episodes and
+the mean error over the last 2 s), `moving` (our simulator: the 1 m step's overshoot and settling
+time, the figure-eight's tracking error), `rotorpy` (RotorPy's PX4 simulator, one flight each, from
+its ground truth), `training` (ours: the wall time from the vehicle file to a checked policy.onnx).
+A cell that quad-sitl refused, or that RotorPy's harness could not finish, says so."""
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
 import sys
 from pathlib import Path
+
+HOLDING = ("hover", "wind", "mass+30%", "mass-30%", "thrust+20%", "thrust-20%")
+EIGHTS = ("figure8 1 m/s", "figure8 2 m/s", "figure8 4 m/s")
+CONTROLLERS = ("raptor", "ours")
+
+
+def _cm(v) -> str:
+    return "–" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{100 * v:.1f} cm"
 
 
 def cell(r: dict) -> str:
     if "refused" in r:
         return "refused"
-    err = r.get("mean_error_last_2s_m")
-    err_s = "–" if err is None or err != err else f"{100 * err:.1f} cm"
     crash = f", {r['crashes']} crashed" if r.get("crashes") else ""
-    return f"{100 * r['success_rate']:.0f} % · {err_s}{crash}"
+    return f"{100 * r['success_rate']:.0f} % · {_cm(r.get('mean_error_last_2s_m'))}{crash}"
 
 
-def table(data: dict) -> str:
-    flights = list(data["flights"])
-    lines = ["| airframe | controller | " + " | ".join(flights) + " |", "|---|---|" + "---|" * len(flights)]
+def step_cell(r: dict, episodes: int | None = None) -> str:
+    if "refused" in r or "failed" in r:
+        return "refused" if "refused" in r else "not flown"
+    settle = r.get("settling_s")
+    s = "never" if settle is None or not math.isfinite(settle) else f"{settle:.2f} s"
+    never = r.get("not_settled")
+    tail = (
+        f" ({never} of {episodes} never)" if never and episodes and settle is not None and math.isfinite(settle) else ""
+    )
+    return f"{r['overshoot_pct']:.1f} % · {s}{tail}"
+
+
+def eight_cell(r: dict) -> str:
+    if "refused" in r or "failed" in r:
+        return "refused" if "refused" in r else "not flown"
+    crash = f", {r['crashes']} crashed" if r.get("crashes") else ""
+    return f"{_cm(r.get('tracking_rms_m'))}{crash}"
+
+
+def _rows(data: dict):
     for name, rows in data["airframes"].items():
-        for controller in ("raptor", "ours"):
+        for controller in CONTROLLERS:
             if controller in rows:
-                lines.append(
-                    f"| {name} | {controller} | " + " | ".join(cell(rows[controller][f]) for f in flights) + " |"
-                )
+                yield name, controller, rows
+
+
+def holding(data: dict) -> str:
+    flights = [f for f in HOLDING if f in data["flights"]]
+    lines = ["| airframe | controller | " + " | ".join(flights) + " |", "|---|---|" + "---|" * len(flights)]
+    for name, c, rows in _rows(data):
+        lines.append(f"| {name} | {c} | " + " | ".join(cell(rows[c][f]) for f in flights) + " |")
     return "\n".join(lines)
 
 
+def moving(data: dict) -> str:
+    eights = [f for f in EIGHTS if f in data["flights"]]
+    head = "| airframe | controller | step: overshoot · settling | " + " | ".join(eights) + " |"
+    lines = [head, "|---|---|---|" + "---:|" * len(eights)]
+    for name, c, rows in _rows(data):
+        r = rows[c]
+        cells = [step_cell(r["step"], data["episodes"]) if "step" in r else "–"]
+        cells += [eight_cell(r[f]) for f in eights]
+        lines.append(f"| {name} | {c} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def rotorpy(data: dict) -> str:
+    lines = [
+        "| airframe | controller | hover to 0.95 m | step: overshoot · settling | "
+        + " | ".join(EIGHTS)
+        + " | missed steps |",
+        "|---|---|---:|---|" + "---:|" * len(EIGHTS) + "---:|",
+    ]
+    for name, rows in data["airframes"].items():
+        side = rows.get("rotorpy")
+        for c in CONTROLLERS if side else ():
+            r = side[c]
+            hover = r.get("hover", {})
+            h = "not flown" if "failed" in hover else _cm(hover.get("mean_error_last_2s_m"))
+            missed = sum(f.get("missed_steps", 0) for f in r.values())
+            cells = [
+                h,
+                step_cell(r["step"]) if "step" in r else "–",
+                *(eight_cell(r[f]) if f in r else "–" for f in EIGHTS),
+            ]
+            lines.append(f"| {name} | {c} | " + " | ".join(cells) + f" | {missed} |")
+    return "\n".join(lines)
+
+
+def training(data: dict) -> str:
+    lines = [
+        "| airframe | file → checked policy.onnx | training | export and parity | its evaluation | load at start |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for name, rows in data["airframes"].items():
+        t = rows.get("ours_training")
+        if t:
+            lines.append(
+                f"| {name} | {t['file_to_policy_s']:.0f} s | {t['train_s']:.0f} s | {t['export_s']:.0f} s | "
+                f"{100 * t['eval_success_rate']:.0f} % · {_cm(t['eval_mean_final_distance_m'])} | "
+                f"{t['load_1min_before']:.1f} |"
+            )
+    return "\n".join(lines)
+
+
+def plot(data: dict, path: Path) -> None:
+    """Hover error and figure-eight tracking error per airframe, RAPTOR beside ours, in both simulators."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    names = list(data["airframes"])
+    panels = [
+        ("our simulator: hover, error over the last 2 s", lambda rows, c: rows[c]["hover"].get("mean_error_last_2s_m")),
+        (
+            "our simulator: figure-eight 2 m/s, tracking RMS",
+            lambda rows, c: rows[c]["figure8 2 m/s"].get("tracking_rms_m"),
+        ),
+        (
+            "RotorPy: hover to 0.95 m, error over the last 2 s",
+            lambda rows, c: rows.get("rotorpy", {}).get(c, {}).get("hover", {}).get("mean_error_last_2s_m"),
+        ),
+        (
+            "RotorPy: figure-eight 2 m/s, tracking RMS",
+            lambda rows, c: rows.get("rotorpy", {}).get(c, {}).get("figure8 2 m/s", {}).get("tracking_rms_m"),
+        ),
+    ]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 3.0 * len(panels)), sharex=True)
+    x = np.arange(len(names))
+    for ax, (title, get) in zip(axes, panels, strict=True):
+        for j, (c, color) in enumerate((("raptor", "tab:red"), ("ours", "tab:blue"))):
+            vals = [get(data["airframes"][n], c) if c in data["airframes"][n] else None for n in names]
+            cm = [100 * v if v is not None and math.isfinite(v) else np.nan for v in vals]
+            ax.bar(x + (j - 0.5) * 0.38, cm, 0.38, label=c, color=color)
+        ax.axhline(5.0, color="k", lw=0.8, ls="--")  # the hover rule's 5 cm
+        ax.set_yscale("log")
+        ax.set_ylabel("cm")
+        ax.set_title(title, fontsize=10)
+        ax.legend(loc="upper left", fontsize=8)
+    axes[-1].set_xticks(x, names, rotation=30, ha="right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    data = json.loads(Path(argv[0]).read_text())
-    print(table(data))
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("json", type=Path)
+    p.add_argument("--table", choices=("holding", "moving", "rotorpy", "training"), default="holding")
+    p.add_argument("--plot", type=Path, help="Draw the plot there instead of printing a table.")
+    args = p.parse_args(argv)
+    data = json.loads(args.json.read_text())
+    if args.plot is not None:
+        plot(data, args.plot)
+        return 0
+    print({"holding": holding, "moving": moving, "rotorpy": rotorpy, "training": training}[args.table](data))
     runs = [rows.get("run", data) for rows in data["airframes"].values()]
+    if args.table == "rotorpy":
+        runs = [rows["rotorpy"]["run"] for rows in data["airframes"].values() if "rotorpy" in rows]
     commits = ", ".join(sorted({r["commit"][:10] for r in runs}))
     loads = [r["load_1min_before"] for r in runs]
+    per = {
+        "rotorpy": "one flight per cell",
+        "holding": f"{data['episodes']} episodes per cell (success · mean error over the last 2 s)",
+    }.get(args.table, f"{data['episodes']} episodes per cell")
     print(
-        f"\n{data['episodes']} episodes per cell (success · mean error over the last 2 s); "
-        f"{data['machine']['cpus']} CPUs, load {min(loads):.1f} to {max(loads):.1f} at the starts; "
+        f"\n{per}; {data['machine']['cpus']} CPUs, load {min(loads):.1f} to {max(loads):.1f} at the starts; "
         f"commit {commits}."
     )
     return 0

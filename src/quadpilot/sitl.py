@@ -335,8 +335,8 @@ def main(argv: list[str] | None = None) -> int:
         from quadpilot.core.vehicle_file import VehicleFileError
         from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
 
-        if args.node_only:
-            return _bad_flag(f"{' '.join(rest)}: simulator flags, but --node-only runs no simulator")
+        if args.node_only and (others := [t for t in rest if not t.startswith("--vehicle=")]):
+            return _bad_flag(f"{' '.join(others)}: simulator flags, but --node-only runs no simulator")
         try:
             config_from_args(build_sim_parser("quad-sitl").parse_args(rest))  # the same checks as the simulator's
         except UsageError as e:
@@ -398,6 +398,8 @@ def main(argv: list[str] | None = None) -> int:
             policy.fly_on(resolve_vehicle(args.vehicle))
         except ValueError as e:
             return _bad_flag(f"--vehicle {args.vehicle}: {e}")
+    elif args.vehicle is not None and args.node_only:  # only a contract policy's outputs depend on it there
+        return _bad_flag(f"--vehicle with --node-only maps a contract policy's outputs; {policy_path} has its own")
     task = args.task or policy.info.task
     if args.maneuver is not None:
         if task != "hover" or policy.info.layout.tracks:

@@ -205,6 +205,11 @@ def test_more_than_ten_percent_of_steps_on_the_fallback_exits_1_with_one_line(tm
         ["--min-success", "0.9"],
         ["--listen", "tcp:127.0.0.1:4560"],
         ["--wind", "1,0,0"],
+        ["--vehicle", "x500", "--wind", "1,0,0"],
+        ["--vehicle", "px4_sih_quadx"],  # an ONNX policy has its own vehicle; only a contract policy's maps to it
+        ["--vehicle", "no_such_vehicle"],
+        ["--maneuver", "figure8"],
+        ["--maneuver", "step", "--home", "47.4,8.5,488"],  # about what? --target says
     ],
 )
 def test_bad_node_only_flags_are_refused_in_one_line(flags, capsys):

@@ -62,6 +62,8 @@ class RotorPyFlight:
     duration_s: float = 5.0
     target: tuple[float, float, float] | None = None
     """--target E,N,U from home (the start position); None: hold the start."""
+    node_flags: tuple[str, ...] = ()
+    """More quad-sitl flags (--maneuver, --vehicle for a contract policy's rotor order)."""
 
     @property
     def id(self) -> str:
@@ -147,6 +149,7 @@ def fly(case: RotorPyFlight, tmp_path: Path) -> tuple[dict, dict, np.ndarray, su
     node_cmd += ["--json", str(summary), "--trace", str(tmp_path / "node.csv")]
     if case.target is not None:
         node_cmd.append("--target=" + ",".join(f"{v:g}" for v in case.target))
+    node_cmd += case.node_flags
     try:
         # hang guards, not timing bounds: on a loaded host RotorPy's Radau steps take several times longer
         node = subprocess.run(node_cmd, capture_output=True, text=True, timeout=900, preexec_fn=above_best_effort)

@@ -81,9 +81,9 @@ class Step:
         elif outside[-1] == len(dist) - 1:
             settling = math.nan  # still outside the band when the flight ended
         else:
-            settling = (outside[-1] + 1) * dt
+            settling = float(outside[-1] + 1) * dt
         lo, hi = np.flatnonzero(along >= 0.1 * span), np.flatnonzero(along >= 0.9 * span)
-        rise = (hi[0] - lo[0]) * dt if lo.size and hi.size else math.nan
+        rise = float(hi[0] - lo[0]) * dt if lo.size and hi.size else math.nan
         return {"overshoot_m": over, "overshoot_pct": 100.0 * over / span, "rise_s": rise, "settling_s": settling}
 
 
