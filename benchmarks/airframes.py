@@ -23,7 +23,10 @@ rest: overshoot, settling time); `figure8 V` (PX4 mc_raptor's figure-eight at a 
 the last 2 s at most 5 cm, yaw rules), the mean error over the last 2 s, the worst heading error,
 crashes, and what the maneuver measures.
 
-Not here yet: RotorPy's side, and a generalist policy.
+RotorPy's side (`rotorpy`, after `run`, with the policies it kept): RAPTOR and ours in RotorPy's PX4
+simulator with each vehicle file's dynamics, `ROTORPY_FLIGHTS`, measured from RotorPy's ground truth.
+
+Not here yet: a generalist policy, and RotorPy's side of the wind and wrong-file flights.
 """
 
 from __future__ import annotations
@@ -99,6 +102,7 @@ def fly(policy: str, vehicle: str, flight: list[str], tmp: Path, episodes: int =
 
 def train(vehicle: str, folder: Path, extra: list[str]) -> dict:
     """`ours` for `vehicle`: quad-train then quad-export into `folder`, timed (s of wall clock)."""
+    load = os.getloadavg()[0]
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "quadpilot.train.cli", *TRAIN, "--vehicle", vehicle, "--out", str(folder), *extra]
     done = subprocess.run(cmd, capture_output=True, text=True)
@@ -117,7 +121,7 @@ def train(vehicle: str, folder: Path, extra: list[str]) -> dict:
         "train_s": t1 - t0,
         "export_s": t2 - t1,
         "file_to_policy_s": t2 - t0,
-        "load_1min_before": os.getloadavg()[0],
+        "load_1min_before": load,
         "eval_success_rate": ev["success_rate"],
         "eval_mean_final_distance_m": ev["mean_final_distance_m"],
     }
@@ -209,11 +213,15 @@ def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path) -
     case = dataclasses.replace(case, node_flags=node_flags)
     try:
         record, summary, _, node = t.fly(case, tmp)
-    except Exception as e:  # the harness's own checks (RotorPy did not finish): a row that says so
-        return {"failed": str(e).strip().splitlines()[0][:300]}
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except BaseException as e:  # the harness's checks (pytest.fail: RotorPy did not finish): a row that says so
+        return {"failed": (str(e).strip().splitlines() or [type(e).__name__])[0][:300]}
     rows = record["steps"]
     scale = np.array([t.ROTORPY_EARTH_RADIUS_M / t.EARTH_RADIUS_M] * 2 + [1.0])
-    p = (np.array([r["x"] for r in rows]) - np.array([0.0, 0.0, t.START_UP_M])) / scale
+    # row j is the state after step j, at (j + 1)·dt: the start (RotorPy's origin, 5 m up) goes first,
+    # so that state k is at k·dt, flown on the target of step k, as in quad-sitl's own log
+    p = np.vstack([np.zeros(3), (np.array([r["x"] for r in rows]) - np.array([0.0, 0.0, t.START_UP_M])) / scale])
     states = np.zeros((len(p), 12))
     states[:, :3] = p
     k = round(t.WINDOW_S * 100)
@@ -230,8 +238,7 @@ def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path) -
         out.update(maneuver.measure(states, 0.01), final_error_m=float(np.linalg.norm(p[-1] - [STEP_DISTANCE_M, 0, 0])))
     else:
         assert isinstance(maneuver, FigureEight)
-        # RotorPy's row i is the state after step i, flown on the target of step i: compared with step i + 1's
-        ref = np.array([maneuver.target_at(i + 1)[0] for i in range(len(p))])
+        ref = np.array([maneuver.target_at(k)[0] for k in range(len(p))])
         out.update(maneuver.measure(states, ref, 0.01))
     return out
 
@@ -245,6 +252,8 @@ def run_rotorpy(out: Path, airframes: list[str], policies: Path, flights: list[s
     data = json.loads(out.read_text())
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     for name in airframes:
+        if name not in data["airframes"] or not (policies / name / "policy.onnx").is_file():
+            raise SystemExit(f"airframes: {name}: run `airframes.py run {out} --policies {policies}` first")
         vehicle = AIRFRAMES[name]
         if not vehicle.endswith(".toml"):
             continue

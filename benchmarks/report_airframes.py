@@ -128,10 +128,13 @@ def plot(data: dict, path: Path) -> None:
 
     names = list(data["airframes"])
     panels = [
-        ("our simulator: hover, error over the last 2 s", lambda rows, c: rows[c]["hover"].get("mean_error_last_2s_m")),
+        (
+            "our simulator: hover, error over the last 2 s",
+            lambda rows, c: rows[c].get("hover", {}).get("mean_error_last_2s_m"),
+        ),
         (
             "our simulator: figure-eight 2 m/s, tracking RMS",
-            lambda rows, c: rows[c]["figure8 2 m/s"].get("tracking_rms_m"),
+            lambda rows, c: rows[c].get("figure8 2 m/s", {}).get("tracking_rms_m"),
         ),
         (
             "RotorPy: hover to 0.95 m, error over the last 2 s",

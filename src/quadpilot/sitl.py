@@ -408,8 +408,10 @@ def main(argv: list[str] | None = None) -> int:
             )
         if sitl_node.commanded(args):
             return _bad_flag("--maneuver flies its own targets; --start landed takes the ground station's")
-        if args.node_only and args.home is not None and args.target is None:
-            return _bad_flag("--maneuver with --home needs --target: the maneuver is flown about it")
+        if args.node_only and (args.home is not None or args.target is not None):
+            return _bad_flag(
+                "--maneuver with --node-only is flown from where the vehicle starts; --home and --target move it"
+            )
         args.maneuver = dataclasses.replace(args.maneuver, dt=policy.info.control_period_s)
     if args.node_only and (task == "circle" or policy.info.layout.tracks):
         return _bad_flag(f"--node-only flies to a fixed --target; {policy_path} is a {policy.info.task} policy")

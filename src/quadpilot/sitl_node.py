@@ -371,8 +371,8 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
         print(f"quad-sitl: error: {e}", file=sys.stderr)
         return 2
     maneuver = targets = None
-    if args.maneuver is not None:  # about --target, else about where the flight started (the local origin)
-        maneuver = dataclasses.replace(args.maneuver, home=tuple(args.target) if args.target else (0.0, 0.0, 0.0))
+    if args.maneuver is not None:  # from where the flight starts: the local origin (home from the first fix)
+        maneuver = dataclasses.replace(args.maneuver, home=(0.0, 0.0, 0.0))
         targets = maneuver.target_at
     cfg = NodeConfig(
         connect=connect,

@@ -205,11 +205,6 @@ def test_more_than_ten_percent_of_steps_on_the_fallback_exits_1_with_one_line(tm
         ["--min-success", "0.9"],
         ["--listen", "tcp:127.0.0.1:4560"],
         ["--wind", "1,0,0"],
-        ["--vehicle", "x500", "--wind", "1,0,0"],
-        ["--vehicle", "px4_sih_quadx"],  # an ONNX policy has its own vehicle; only a contract policy's maps to it
-        ["--vehicle", "no_such_vehicle"],
-        ["--maneuver", "figure8"],
-        ["--maneuver", "step", "--home", "47.4,8.5,488"],  # about what? --target says
     ],
 )
 def test_bad_node_only_flags_are_refused_in_one_line(flags, capsys):
@@ -218,6 +213,25 @@ def test_bad_node_only_flags_are_refused_in_one_line(flags, capsys):
     assert code == 2 and printed.out == ""
     (line,) = printed.err.strip().splitlines()
     assert line.startswith("quad-sitl: error: ")
+
+
+@pytest.mark.parametrize(
+    ("flags", "says"),
+    [
+        (["--vehicle", "x500", "--wind", "1,0,0"], "--wind=1,0,0: simulator flags, but --node-only runs no simulator"),
+        (["--vehicle", "px4_sih_quadx"], "--vehicle with --node-only maps a contract policy's outputs"),
+        (["--vehicle", "no_such_vehicle"], "unknown vehicle 'no_such_vehicle'"),
+        (["--maneuver", "figure8"], "expected step, step:METRES"),
+        (["--maneuver", "step", "--target", "0,0,1"], "flown from where the vehicle starts"),
+        (["--maneuver", "step", "--home", "47.4,8.5,488"], "flown from where the vehicle starts"),
+    ],
+)
+def test_node_only_vehicle_and_maneuver_flags_it_cannot_use_say_why(flags, says, capsys):
+    """--vehicle reaches the node only for a contract policy (RAPTOR's rotor order); a maneuver is
+    flown from where the vehicle starts."""
+    assert main(node_only(9, *flags)) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert says in line
 
 
 @pytest.mark.parametrize("flags", [["--home", "47.4,8.5,488"], ["--target", "0,0,1"], ["--trace", "t.csv"]])

@@ -16,10 +16,11 @@ trails the figure-eight by tens of centimetres.
   `SETTLE_BAND_M` for good; 5 cm, the hover rule's tolerance, 5 % of the 1 m step).
 - `FigureEight`: PX4 mc_raptor's own figure-eight, the Lissajous curve of
   mc_raptor/trajectories/lissajous.hpp (x = A sin θ, y = B sin 2θ about home, the speed ramped up
-  linearly over `ramp_s`, yaw held at 0), with A = 2 m and B = 1 m (mc_raptor's defaults are 1 m and
-  0.5 m; twice the size keeps the accelerations of the 4 m/s flight within the thrust of the set's
-  heaviest airframe: 8 m/s² across, 4 m/s² along). `speed` is the target's peak speed (at the centre
-  crossing). Measured over one lap after the ramp: the RMS and the largest distance to the target.
+  linearly over `ramp_s`; mc_raptor holds yaw 0, here the heading the flight starts with), with
+  A = 2 m and B = 1 m (mc_raptor's defaults are 1 m and 0.5 m; twice the size keeps the
+  accelerations of the 4 m/s flight within the thrust of the set's heaviest airframe: 8 m/s² across,
+  4 m/s² along). `speed` is the target's peak speed (at the centre crossing). Measured over one lap
+  after the ramp: the RMS and the largest distance to the target.
 
 NumPy only: the simulator's node and the benchmarks call it.
 """
@@ -41,6 +42,10 @@ STEP_DISTANCE_M = 1.0
 STEP_DURATION_S = 5.0
 EIGHT_A_M = 2.0
 EIGHT_B_M = 1.0
+MAX_STEP_M = 100.0
+SPEEDS_MPS = (0.1, 20.0)
+"""The figure-eight's peak speeds flown (mc_raptor's documentation shows 12 m/s on real vehicles); at
+0.1 m/s one lap takes three minutes."""
 EIGHT_RAMP_S = 3.0
 """s over which the figure-eight's speed ramps up from rest (mc_raptor lissajous.hpp's ramp_duration)."""
 
@@ -65,7 +70,7 @@ class Step:
 
     def measure(self, states: np.ndarray, dt: float) -> dict:
         """Overshoot (m and % of the step), rise time and settling time (s; NaN when never) of one
-        flight: states (N, 12) from the first step on."""
+        flight: states (N, 12), state k at k·dt, state 0 the start (at rest at home)."""
         p = np.asarray(states, np.float64)[:, POS]
         if p.shape[0] == 0:
             return {"overshoot_m": math.nan, "overshoot_pct": math.nan, "rise_s": math.nan, "settling_s": math.nan}
@@ -101,8 +106,8 @@ class FigureEight:
     name = "figure8"
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.speed) and self.speed > 0):
-            raise ValueError(f"figure-eight speed {self.speed!r}: expected a positive number of m/s")
+        if not (SPEEDS_MPS[0] <= self.speed <= SPEEDS_MPS[1]):  # (NaN fails both)
+            raise ValueError(f"figure-eight speed {self.speed!r}: expected {SPEEDS_MPS[0]:g} to {SPEEDS_MPS[1]:g} m/s")
 
     @property
     def rate(self) -> float:
@@ -149,14 +154,17 @@ def parse_maneuver(text: str, dt: float = 0.01) -> Step | FigureEight:
     try:
         if name == "step":
             d = float(arg) if arg else STEP_DISTANCE_M
-            if not (math.isfinite(d) and d > 0):
+            if not (0.0 < d <= MAX_STEP_M):
                 raise ValueError
             return Step(d, dt)
         if name == "figure8" and arg:
             return FigureEight(float(arg), dt)
     except ValueError:
         pass
-    raise ValueError(f"maneuver {text!r}: expected step, step:METRES or figure8:M/S (e.g. figure8:2)")
+    raise ValueError(
+        f"maneuver {text!r}: expected step, step:METRES (up to {MAX_STEP_M:g}) or figure8:M/S "
+        f"({SPEEDS_MPS[0]:g} to {SPEEDS_MPS[1]:g}, e.g. figure8:2)"
+    )
 
 
 def summarise(maneuver: Step | FigureEight, flights: list[tuple[np.ndarray, np.ndarray, float]]) -> dict:
@@ -168,7 +176,12 @@ def summarise(maneuver: Step | FigureEight, flights: list[tuple[np.ndarray, np.n
     else:
         per = [maneuver.measure(states, targets, dt) for states, targets, dt in flights]
     out: dict = {"maneuver": {"name": maneuver.name, **dataclasses.asdict(maneuver)}, "maneuver_per_episode": per}
-    for key in per[0] if per else ():
+    keys = (
+        ("overshoot_m", "overshoot_pct", "rise_s", "settling_s")
+        if isinstance(maneuver, Step)
+        else ("tracking_rms_m", "tracking_max_m")
+    )
+    for key in keys:  # NaN where nothing was flown (interrupted in the first flight)
         finite = [e[key] for e in per if math.isfinite(e[key])]
         out[key] = float(np.mean(finite)) if finite else math.nan
     if isinstance(maneuver, Step):
