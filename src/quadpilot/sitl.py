@@ -402,16 +402,8 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_flag(f"--vehicle with --node-only maps a contract policy's outputs; {policy_path} has its own")
     task = args.task or policy.info.task
     if args.maneuver is not None:
-        if task != "hover" or policy.info.layout.tracks:
-            return _bad_flag(
-                f"--maneuver flies from a hover; {policy_path} is a {policy.info.task} policy (--task {task})"
-            )
-        if sitl_node.commanded(args):
-            return _bad_flag("--maneuver flies its own targets; --start landed takes the ground station's")
-        if args.node_only and (args.home is not None or args.target is not None):
-            return _bad_flag(
-                "--maneuver with --node-only is flown from where the vehicle starts; --home and --target move it"
-            )
+        if (why := sitl_node.maneuver_misused(args, task, policy, policy_path)) is not None:
+            return _bad_flag(why)
         args.maneuver = dataclasses.replace(args.maneuver, dt=policy.info.control_period_s)
     if args.node_only and (task == "circle" or policy.info.layout.tracks):
         return _bad_flag(f"--node-only flies to a fixed --target; {policy_path} is a {policy.info.task} policy")

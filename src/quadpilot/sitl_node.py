@@ -473,6 +473,17 @@ def maneuver_flag(text: str):
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
+def maneuver_misused(args, task: str, policy, policy_path) -> str | None:
+    """Why --maneuver cannot be flown with these flags and this policy, or None."""
+    if task != "hover" or policy.info.layout.tracks:
+        return f"--maneuver flies from a hover; {policy_path} is a {policy.info.task} policy (--task {task})"
+    if commanded(args):
+        return "--maneuver flies its own targets; --start landed takes the ground station's"
+    if args.node_only and (args.home is not None or args.target is not None):
+        return "--maneuver with --node-only is flown from where the vehicle starts; --home and --target move it"
+    return None
+
+
 MANEUVER_START = {"--init-pos-radius": "0", "--init-vel": "0", "--init-tilt": "0"}
 """A maneuver starts at rest, level, at home: these simulator flags unless given."""
 
