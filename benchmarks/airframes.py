@@ -177,6 +177,7 @@ def run(
                 }
                 for f, r in rows[controller].items():
                     print(f"{name} {controller} {f}: {r}", flush=True)
+            out.write_text(json.dumps(data, indent=1) + "\n")  # after each airframe: a long run keeps what it flew
     data["load_1min_after"] = os.getloadavg()[0]
     out.write_text(json.dumps(data, indent=1) + "\n")
     return data

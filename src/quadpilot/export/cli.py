@@ -30,7 +30,7 @@ from pathlib import Path
 
 from quadpilot.console import Parser, UsageError
 
-PARITY_TOLERANCE = 1e-5  # max abs difference in motor command (the export issue's bar)
+PARITY_TOLERANCE = 1e-5  # max abs difference in thrust command u², a fraction of full thrust (onnx_export.check_parity)
 MAX_PARITY_SAMPLES = 1_000_000  # ~70 MB of observations; the default 10 000 takes seconds
 
 
@@ -186,7 +186,7 @@ def _report_parity(parity: dict) -> int:
     over = f"{parity['observations']:,} observations"
     if "sequences" in parity:
         over += f" in {parity['sequences']} sequences with a state reset half-way"
-    print(f"parity over {over} (max abs difference in motor command):")
+    print(f"parity over {over} (max abs difference in thrust command, a fraction of full thrust):")
     for k, v in parity.items():
         if k not in counts:
             print(f"  {k.replace('_', ' '):32s} {v:.2e}")
