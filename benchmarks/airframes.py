@@ -38,6 +38,7 @@ import importlib.util
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -168,6 +169,7 @@ def run(
             if reuse and made.is_file() and (folder / "training.json").is_file():
                 rows["ours_training"] = json.loads((folder / "training.json").read_text())
             else:
+                shutil.rmtree(folder, ignore_errors=True)  # an earlier run's, never finished: trained again
                 rows["ours_training"] = train(vehicle, folder, train_flags or [])
                 (folder / "training.json").write_text(json.dumps(rows["ours_training"], indent=1) + "\n")
             print(f"{name} ours trained: {rows['ours_training']}", flush=True)
