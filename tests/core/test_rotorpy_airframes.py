@@ -158,11 +158,12 @@ def test_a_vehicle_file_goes_to_rotorpy_and_back(path):
     airframe set, and RotorPy's Multirotor computes the wrench our dynamics does for it."""
     from rotorpy.vehicles.multirotor import Multirotor
 
-    from quadpilot.core.rotorpy_vehicle import rotorpy_params
+    from quadpilot.core.rotorpy_vehicle import MIN_TAU_M_S, rotorpy_params
 
     v = load_vehicle_file(path)
     back = vehicle_from_rotorpy(rotorpy_params(v), v.name)
-    assert dataclasses.replace(back, arm=v.arm, k_m=v.k_m) == v
+    assert back.motor_tau == max(v.motor_tau, MIN_TAU_M_S)  # RotorPy cannot step a rotor without lag
+    assert dataclasses.replace(back, arm=v.arm, k_m=v.k_m, motor_tau=v.motor_tau) == v
     assert back.k_m == pytest.approx(v.k_m, rel=1e-12) and back.arm == pytest.approx(v.arm, rel=1e-9)
     model = Multirotor(rotorpy_params(v), aero=True)
     u = np.array([0.5, 0.6, 0.7, 0.8])
@@ -180,3 +181,19 @@ def test_a_vehicle_with_linear_drag_is_not_flown_in_rotorpy_without_it():
 
     with pytest.raises(RotorPyAirframeError, match="RotorPy has no linear drag"):
         rotorpy_params(load_vehicle_file(Path(__file__).parents[2] / "src/quadpilot/vehicles/px4_sih_quadx.toml"))
+
+
+def test_a_vehicle_without_motor_lag_steps_in_rotorpy():
+    """RotorPy integrates the rotor speeds as (command − speed)/tau_m: the asymmetric frame (no lag)
+    divided by zero in RotorPy's PX4 simulator before it was given MIN_TAU_M_S."""
+    from rotorpy.vehicles.multirotor import Multirotor
+
+    from quadpilot.core.rotorpy_vehicle import rotorpy_params
+
+    v = load_vehicle_file(Path(__file__).parents[2] / "benchmarks/airframes/asymmetric.toml")
+    assert v.motor_tau == 0.0
+    model = Multirotor(rotorpy_params(v))
+    state = {k: np.array(x, float) for k, x in model.initial_state.items()}
+    out = model.step(state, {"cmd_motor_speeds": np.full(4, 0.6 * v.omega_max)}, 0.01)
+    assert all(np.all(np.isfinite(x)) for x in out.values())
+    np.testing.assert_allclose(out["rotor_speeds"], 0.6 * v.omega_max, rtol=1e-3)  # a lag far under the step

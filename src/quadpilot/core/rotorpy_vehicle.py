@@ -129,10 +129,15 @@ def vehicle_from_rotorpy(quad_params: dict, name: str) -> VehicleParams:
         raise RotorPyAirframeError(str(e)) from None
 
 
+MIN_TAU_M_S = 0.001
+"""s: the motor time constant RotorPy is given for a vehicle without one (0 would divide by zero)."""
+
+
 def rotorpy_params(v: VehicleParams) -> dict:
     """The other way: a vehicle as RotorPy's `quad_params`, for flying a vehicle file in RotorPy's
     simulators (its Multirotor, PX4Multirotor). RotorPy has no linear drag: a vehicle with `drag` > 0
-    is refused (RotorPyAirframeError) rather than flown without it."""
+    is refused (RotorPyAirframeError) rather than flown without it. A vehicle without a motor lag is
+    given `MIN_TAU_M_S` (RotorPy's rotor dynamics divide by it)."""
     if v.drag > 0:
         raise RotorPyAirframeError(
             f"vehicle {v.name!r}: drag = {v.drag} N s/m (linear): RotorPy has no linear drag; "
@@ -162,7 +167,9 @@ def rotorpy_params(v: VehicleParams) -> dict:
         "k_z": v.k_z,
         "k_h": v.k_h,
         "k_flap": v.k_flap,
-        "tau_m": v.motor_tau,
+        # RotorPy integrates the rotor lag as (command − speed)/tau_m and divides by zero without one:
+        # a vehicle without lag gets MIN_TAU_M_S, a tenth of a 100 Hz control step
+        "tau_m": max(v.motor_tau, MIN_TAU_M_S),
         "rotor_speed_min": v.omega_min,
         "rotor_speed_max": v.omega_max,
         "motor_noise_std": 0.0,
