@@ -386,6 +386,12 @@ ALLOWED: tuple[tuple[str, str], ...] = (
     ),
     (r"\b500\s+steps|\b0\.01\s+s\b", "the episode: 500 steps of 0.01 s (EnvConfig)"),
     (
+        r"headings\s+within\s+30°|\b4\s+m\s+by\s+2\s+m|ramped\s+up\s+over\s+3\s+s|\b1,\s+2\s+and\s+4\s+m/s|"
+        r"\b1\s+and\s+2\s+m/s|\bat\s+[124]\s+m/s|the\s+5\s+s\s+ended|within\s+its\s+10\s+ms",
+        "the airframe comparison's flights (core.maneuver, benchmarks/airframes.py): commanded headings, the "
+        "figure-eight's size, ramp and speeds, the step's duration, RotorPy's wait for an answer",
+    ),
+    (
         r"\b10×|\b50×\s+the\s+default|\b10×\s+the\s+default|20×\s+larger\s+rewards\s+give\s+400×|~14×",
         "ratios that are not results: the issue's 10× target, learning rates as multiples of the default, "
         "the arithmetic of squared errors, the design notes' claim the paragraph refutes",
