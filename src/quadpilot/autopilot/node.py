@@ -83,7 +83,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.core.dynamics import NUM_MOTORS
-from quadpilot.core.state import POS, YAW
+from quadpilot.core.state import POS, VEL, YAW
 from quadpilot.link import spin, transport, wire
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, check_spin
 from quadpilot.runtime.observation_one import observe
@@ -507,7 +507,7 @@ class _Flight:
                 own = self.own_observation  # (RAPTOR's) or, below, the function training used, for one state
                 tv = [0.0, 0.0, 0.0] if target_vel is None else np.asarray(target_vel, np.float64).tolist()
                 if not self.track and own is None:  # a hover policy: a moving target is followed in its frame
-                    s, tv = s if target_vel is None else [*s[:3], *np.subtract(s[3:6], tv).tolist(), *s[6:]], None
+                    s[VEL], tv = (s[VEL] if target_vel is None else np.subtract(s[VEL], tv).tolist()), None
                 obs = observe(s, tp, tv, heading) if own is None else own(s, tp, tv, heading, t_us)
                 cmd = self.held = monitor.act(obs)
                 self.held_source = monitor.source
