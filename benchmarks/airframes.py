@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as _dt
-import importlib.util
 import json
 import os
 import platform
@@ -249,9 +248,9 @@ def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path) -
 def run_rotorpy(out: Path, airframes: list[str], policies: Path, flights: list[str] | None = None) -> dict:
     """RotorPy's side of `airframes` (vehicle files only), RAPTOR and the policies `run` trained into
     `policies`, written into `out` (the JSON `run` wrote) under each airframe's "rotorpy"."""
-    spec = importlib.util.spec_from_file_location("rotorpy_flight_test", ROOT / "tests/sitl/test_rotorpy.py")
-    t = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(t)
+    import rotorpy_flights
+
+    t = rotorpy_flights._load_test_module()
     data = json.loads(out.read_text())
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     for name in airframes:

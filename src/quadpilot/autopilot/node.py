@@ -504,10 +504,11 @@ class _Flight:
                 else:
                     self._fixed_of, tp = target, np.asarray(target, np.float64).tolist()
                     self._fixed_values = tp
-                own = self.own_observation  # (RAPTOR's) or, below, the function training used, for one state
-                tv = [0.0, 0.0, 0.0] if target_vel is None else np.asarray(target_vel, np.float64).tolist()
-                if not self.track and own is None:  # a hover policy: a moving target is followed in its frame
-                    s[VEL], tv = (s[VEL] if target_vel is None else np.subtract(s[VEL], tv).tolist()), None
+                own, tv = self.own_observation, None if target_vel is None else np.asarray(target_vel).tolist()
+                if self.track or own is not None:  # RAPTOR, a track policy: the target's velocity (0: fixed)
+                    tv = tv or [0.0, 0.0, 0.0]
+                elif tv is not None:  # a hover policy follows a moving target in the target's frame
+                    s[VEL], tv = np.subtract(s[VEL], tv).tolist(), None
                 obs = observe(s, tp, tv, heading) if own is None else own(s, tp, tv, heading, t_us)
                 cmd = self.held = monitor.act(obs)
                 self.held_source = monitor.source
