@@ -17,7 +17,8 @@ Controllers, the same flights for each:
 Flights (`quad-sitl`, 100 Hz, seeded): `hover` (random starts within 1 m, commanded headings within
 30°, rotors anywhere from rest to hover; 5 s); `wind` (a steady 2 m/s wind and 1 m/s gusts);
 `mass+30%`, `mass-30%` (the plant heavier or lighter than the vehicle file says: what a user gets
-wrong), `thrust+20%`, `thrust-20%` (the rotors' thrust coefficient off by as much); `step` (1 m from
+wrong), `thrust+20%`, `thrust-20%` (the rotors' thrust coefficient off by as much); `impulse` (a hit
+3 s into a 7 s hover: the velocity jumps by 1 m/s east; judged over the last 2 s); `step` (1 m from
 rest: overshoot, settling time); `figure8 V` (PX4 mc_raptor's figure-eight at a peak speed of V m/s,
 `core.maneuver`: tracking error over a lap). Per flight: success (the hover rule: mean error over
 the last 2 s at most 5 cm, yaw rules), the mean error over the last 2 s, the worst heading error,
@@ -26,7 +27,13 @@ crashes, and what the maneuver measures.
 RotorPy's side (`rotorpy`, after `run`, with the policies it kept): RAPTOR and ours in RotorPy's PX4
 simulator with each vehicle file's dynamics, `ROTORPY_FLIGHTS`, measured from RotorPy's ground truth.
 
-Not here yet: a generalist policy, and RotorPy's side of the wind and wrong-file flights.
+The generalist (`generalist OUT --policy generalist.pt --policies DIR`, after `run`): one recurrent
+policy trained once over drawn airframes (`GENERALIST_TRAIN`: quad-train --arch lstm --randomize
+airframes; `core.randomization.AIRFRAMES`), exported for each airframe with `quad-export --vehicle
+FILE` (its file's hover command and rotor order, nothing retrained; `export.retarget`) and flown on
+the same flights in both simulators, under each airframe's "generalist" and "rotorpy"/"generalist".
+
+Not here yet: RotorPy's side of the wind, impulse and wrong-file flights.
 """
 
 from __future__ import annotations
@@ -65,12 +72,20 @@ FLIGHTS = {
     "mass-30%": ["--mass-scale", "0.7"],
     "thrust+20%": ["--motor-scale", "1.2"],
     "thrust-20%": ["--motor-scale", "0.8"],
+    "impulse": ["--impulse", "1@3", "--duration", "7"],
     "step": ["--maneuver", "step"],
     "figure8 1 m/s": ["--maneuver", "figure8:1"],
     "figure8 2 m/s": ["--maneuver", "figure8:2"],
     "figure8 4 m/s": ["--maneuver", "figure8:4"],
 }
+GENERALIST_TRAIN = [
+    *("--task", "hover", "--arch", "lstm", "--randomize", "airframes", "--init-rotor", "random"),
+    *("--num-envs", "256", "--seed", "0", "--total-steps", "12000000"),
+]
+"""quad-train's flags for the generalist (no --vehicle: the seed's quad-X layout, every episode a drawn
+airframe): the recurrent hover recipe over 256 drones."""
 EPISODES = 10
+EVAL_KEYS = ("eval_success_rate", "eval_mean_final_distance_m")
 KEPT = (
     "success_rate",
     "crashes",
@@ -152,31 +167,45 @@ def run(
     }
     if merge and out.is_file():
         old = json.loads(out.read_text())
-        if old.get("episodes") != episodes or old.get("flights") != data["flights"]:
-            raise SystemExit(f"airframes: {out} holds other flights or episode counts; run it whole")
+        redefined = [f for f, v in data["flights"].items() if old.get("flights", {}).get(f, v) != v]
+        if old.get("episodes") != episodes or redefined:
+            raise SystemExit(f"airframes: {out} holds other episode counts or flights {redefined}; run it whole")
         for rows in old["airframes"].values():  # the earlier runs' airframes, with their own run data
             rows.setdefault("run", {k: old[k] for k in ("started", "commit", "load_1min_before")})
         data["airframes"] = old["airframes"]
+        data["flights"] = {**old["flights"], **data["flights"]}  # a flight added to the others
     with tempfile.TemporaryDirectory() as tmp:
         keep = Path(tmp) / "policies" if policies is None else policies
         for name in airframes:
             vehicle = AIRFRAMES[name]
-            rows = data["airframes"][name] = {"vehicle": vehicle.replace(str(ROOT) + "/", "")}
-            rows["run"] = {"started": data["started"], "commit": commit, "load_1min_before": os.getloadavg()[0]}
+            rows = data["airframes"].setdefault(name, {})
+            rows["vehicle"] = vehicle.replace(str(ROOT) + "/", "")
+            when = {"started": data["started"], "commit": commit, "load_1min_before": os.getloadavg()[0]}
+            if flights is None:  # the whole airframe again
+                rows = data["airframes"][name] = {"vehicle": rows["vehicle"], "run": when}
+            else:  # these flights added to the airframe's others, with when they were flown
+                rows.setdefault("flights_run", {}).update({f: when for f in flights})
             folder = keep / name
             made = folder / "policy.onnx"
             if reuse and made.is_file() and (folder / "training.json").is_file():
-                rows["ours_training"] = json.loads((folder / "training.json").read_text())
+                if flights is None or "ours_training" not in rows:  # else the first training's record stays
+                    rows["ours_training"] = json.loads((folder / "training.json").read_text())
             else:
                 shutil.rmtree(folder, ignore_errors=True)  # an earlier run's, never finished: trained again
-                rows["ours_training"] = train(vehicle, folder, train_flags or [])
-                (folder / "training.json").write_text(json.dumps(rows["ours_training"], indent=1) + "\n")
+                trained = train(vehicle, folder, train_flags or [])
+                (folder / "training.json").write_text(json.dumps(trained, indent=1) + "\n")
+                if flights is not None and "ours_training" in rows:
+                    # trained again to fly added flights: the other flights' policy is the first one,
+                    # the same if the seeded training is (its evaluation says whether it is)
+                    same = all(trained[k] == rows["ours_training"][k] for k in EVAL_KEYS)
+                    rows["ours_retraining"] = {**trained, "same_evaluation_as_first": same}
+                else:
+                    rows["ours_training"] = trained
             print(f"{name} ours trained: {rows['ours_training']}", flush=True)
             for controller, policy in (("raptor", "raptor:foundation"), ("ours", str(made))):
-                rows[controller] = {
-                    f: fly(policy, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()
-                }
-                for f, r in rows[controller].items():
+                flown = {f: fly(policy, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()}
+                rows[controller] = {**rows.get(controller, {}), **flown}
+                for f, r in flown.items():
                     print(f"{name} {controller} {f}: {r}", flush=True)
             out.write_text(json.dumps(data, indent=1) + "\n")  # after each airframe: a long run keeps what it flew
     data["load_1min_after"] = os.getloadavg()[0]
@@ -245,29 +274,91 @@ def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path) -
     return out
 
 
-def run_rotorpy(out: Path, airframes: list[str], policies: Path, flights: list[str] | None = None) -> dict:
-    """RotorPy's side of `airframes` (vehicle files only), RAPTOR and the policies `run` trained into
-    `policies`, written into `out` (the JSON `run` wrote) under each airframe's "rotorpy"."""
+def generalist_policy(policy: Path, vehicle: str, folder: Path) -> dict:
+    """The generalist for `vehicle`: `quad-export --vehicle` into folder/generalist.onnx, timed."""
+    folder.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    cmd = [sys.executable, "-m", "quadpilot.export.cli", str(policy), "-o", str(folder / "generalist.onnx")]
+    done = subprocess.run([*cmd, "--vehicle", vehicle], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"airframes: quad-export --vehicle {vehicle} failed: {done.stderr.strip()[-300:]}")
+    return {"command": f"quad-export {policy.name} --vehicle FILE", "file_to_policy_s": time.perf_counter() - t0}
+
+
+def run_generalist(
+    out: Path, airframes: list[str], policy: Path, policies: Path, episodes: int, flights: dict | None = None
+) -> dict:
+    """The generalist on `airframes` in our simulator, into `out` (the JSON `run` wrote), with the
+    training run's record (policy's folder: config.json, eval.json, metrics.csv)."""
+    data = json.loads(out.read_text())
+    if data.get("episodes") != episodes:
+        raise SystemExit(f"airframes: {out} was flown with {data.get('episodes')} episodes; give --episodes to match")
+    run_dir = policy.parent
+    ev = json.loads((run_dir / "eval.json").read_text()) if (run_dir / "eval.json").is_file() else {}
+    metrics = (run_dir / "metrics.csv").read_text().splitlines() if (run_dir / "metrics.csv").is_file() else []
+    last = dict(zip(metrics[0].split(","), metrics[-1].split(","), strict=True)) if len(metrics) > 1 else {}
+    data["generalist_training"] = {
+        "command": "quad-train " + " ".join(GENERALIST_TRAIN),
+        "steps": int(float(last.get("global_step", 0))),
+        "train_s": float(last.get("time_s", "nan")),
+        "eval_success_rate": ev.get("success_rate"),
+        "eval_mean_final_distance_m": ev.get("mean_final_distance_m"),
+    }
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in airframes:
+            vehicle = AIRFRAMES[name]
+            rows = data["airframes"].setdefault(name, {"vehicle": vehicle.replace(str(ROOT) + "/", "")})
+            rows["generalist_export"] = generalist_policy(policy, vehicle, policies / name)
+            rows["generalist_export"]["run"] = {"commit": commit, "load_1min_before": os.getloadavg()[0]}
+            made = str(policies / name / "generalist.onnx")
+            rows["generalist"] = {
+                f: fly(made, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()
+            }
+            for f, r in rows["generalist"].items():
+                print(f"{name} generalist {f}: {r}", flush=True)
+            out.write_text(json.dumps(data, indent=1) + "\n")
+    return data
+
+
+def run_rotorpy(
+    out: Path,
+    airframes: list[str],
+    policies: Path,
+    flights: list[str] | None = None,
+    controllers: list[str] | None = None,
+) -> dict:
+    """RotorPy's side of `airframes` (vehicle files only), RAPTOR, the policies `run` trained into
+    `policies` and the generalist exported there, written into `out` (the JSON `run` wrote) under
+    each airframe's "rotorpy"; `controllers`: only these (the others' rows are kept)."""
     import rotorpy_flights
 
     t = rotorpy_flights._load_test_module()
     data = json.loads(out.read_text())
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     for name in airframes:
-        if name not in data["airframes"] or not (policies / name / "policy.onnx").is_file():
-            raise SystemExit(f"airframes: {name}: run `airframes.py run {out} --policies {policies}` first")
+        files = {"ours": "policy.onnx", "generalist": "generalist.onnx"}
+        wanted = [files[c] for c in controllers or ("ours",) if c in files]
+        if name not in data["airframes"] or not all((policies / name / f).is_file() for f in wanted):
+            raise SystemExit(f"airframes: {name}: run `airframes.py run|generalist {out} --policies {policies}` first")
         vehicle = AIRFRAMES[name]
         if not vehicle.endswith(".toml"):
             continue
         rows = data["airframes"][name]
-        side = rows["rotorpy"] = {
-            "run": {
-                "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-                "commit": commit,
-                "load_1min_before": os.getloadavg()[0],
-            }
+        side = rows.setdefault("rotorpy", {})
+        when = {
+            "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "commit": commit,
+            "load_1min_before": os.getloadavg()[0],
         }
-        for controller, policy in (("raptor", "raptor:foundation"), ("ours", str(policies / name / "policy.onnx"))):
+        chosen = {
+            "raptor": "raptor:foundation",
+            "ours": str(policies / name / "policy.onnx"),
+            "generalist": str(policies / name / "generalist.onnx"),
+        }
+        for controller in controllers or ("raptor", "ours"):
+            policy = chosen[controller]
+            side["run" if controllers is None else f"run_{controller}"] = when
             side[controller] = {}
             for f in flights or ROTORPY_FLIGHTS:
                 with tempfile.TemporaryDirectory() as tmp:
@@ -294,9 +385,23 @@ def main(argv: list[str] | None = None) -> int:
     rp.add_argument("--policies", type=Path, required=True)
     rp.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every vehicle file.")
     rp.add_argument("--flight", action="append", choices=sorted(ROTORPY_FLIGHTS), help="Default: every one.")
+    rp.add_argument(
+        "--controller", action="append", choices=("raptor", "ours", "generalist"), help="Default: raptor and ours."
+    )
+    g = sub.add_parser("generalist", help="The generalist, exported per airframe, in our simulator.")
+    g.add_argument("out", type=Path)
+    g.add_argument("--policy", type=Path, required=True, help="The generalist's policy.pt (GENERALIST_TRAIN).")
+    g.add_argument("--policies", type=Path, required=True, help="Writes DIR/AIRFRAME/generalist.onnx (and .pt).")
+    g.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every one.")
+    g.add_argument("--episodes", type=int, default=EPISODES)
+    g.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help="Default: every one.")
     args = p.parse_args(argv)
     if args.cmd == "rotorpy":
-        run_rotorpy(args.out, args.airframe or list(AIRFRAMES), args.policies, args.flight)
+        run_rotorpy(args.out, args.airframe or list(AIRFRAMES), args.policies, args.flight, args.controller)
+        return 0
+    if args.cmd == "generalist":
+        chosen = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
+        run_generalist(args.out, args.airframe or list(AIRFRAMES), args.policy, args.policies, args.episodes, chosen)
         return 0
     flights = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
     run(

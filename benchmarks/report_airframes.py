@@ -3,10 +3,12 @@
     python benchmarks/report_airframes.py docs/bench/airframes.json                       # the tables
     python benchmarks/report_airframes.py docs/bench/airframes.json --plot docs/img/airframes.png
 
-Tables: `holding` (our simulator: hover, wind and the wrong-file flights: success of the episodes and
+Tables: `holding` (our simulator: hover, wind, the impulse and the wrong-file flights: success of the episodes and
 the mean error over the last 2 s), `moving` (our simulator: the 1 m step's overshoot and settling
 time, the figure-eight's tracking error), `rotorpy` (RotorPy's PX4 simulator, one flight each, from
-its ground truth), `training` (ours: the wall time from the vehicle file to a checked policy.onnx).
+its ground truth), `training` (ours: the wall time from the vehicle file to a checked policy.onnx;
+the generalist: the export for the file, and its one training run). Controllers: raptor, ours and,
+where flown, the generalist.
 A cell that quad-sitl refused, or that RotorPy's harness could not finish, says so."""
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ import math
 import sys
 from pathlib import Path
 
-HOLDING = ("hover", "wind", "mass+30%", "mass-30%", "thrust+20%", "thrust-20%")
+HOLDING = ("hover", "wind", "impulse", "mass+30%", "mass-30%", "thrust+20%", "thrust-20%")
 EIGHTS = ("figure8 1 m/s", "figure8 2 m/s", "figure8 4 m/s")
-CONTROLLERS = ("raptor", "ours")
+CONTROLLERS = ("raptor", "ours", "generalist")
 
 
 def _cm(v) -> str:
@@ -63,7 +65,8 @@ def holding(data: dict) -> str:
     flights = [f for f in HOLDING if f in data["flights"]]
     lines = ["| airframe | controller | " + " | ".join(flights) + " |", "|---|---|" + "---|" * len(flights)]
     for name, c, rows in _rows(data):
-        lines.append(f"| {name} | {c} | " + " | ".join(cell(rows[c][f]) for f in flights) + " |")
+        cells = [cell(rows[c][f]) if f in rows[c] else "–" for f in flights]
+        lines.append(f"| {name} | {c} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -74,7 +77,7 @@ def moving(data: dict) -> str:
     for name, c, rows in _rows(data):
         r = rows[c]
         cells = [step_cell(r["step"], data["episodes"]) if "step" in r else "–"]
-        cells += [eight_cell(r[f]) for f in eights]
+        cells += [eight_cell(r[f]) if f in r else "–" for f in eights]
         lines.append(f"| {name} | {c} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -88,7 +91,7 @@ def rotorpy(data: dict) -> str:
     ]
     for name, rows in data["airframes"].items():
         side = rows.get("rotorpy")
-        for c in CONTROLLERS if side else ():
+        for c in [c for c in CONTROLLERS if c in side] if side else ():
             r = side[c]
             hover = r.get("hover", {})
             h = "not flown" if "failed" in hover else _cm(hover.get("mean_error_last_2s_m"))
@@ -104,17 +107,27 @@ def rotorpy(data: dict) -> str:
 
 def training(data: dict) -> str:
     lines = [
-        "| airframe | file → checked policy.onnx | training | export and parity | its evaluation | load at start |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| airframe | file → checked policy.onnx | training | export and parity | its evaluation | load at start "
+        "| generalist: file → checked ONNX |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name, rows in data["airframes"].items():
         t = rows.get("ours_training")
+        g = rows.get("generalist_export")
+        general = f"{g['file_to_policy_s']:.0f} s" if g else "–"
         if t:
             lines.append(
                 f"| {name} | {t['file_to_policy_s']:.0f} s | {t['train_s']:.0f} s | {t['export_s']:.0f} s | "
                 f"{100 * t['eval_success_rate']:.0f} % · {_cm(t['eval_mean_final_distance_m'])} | "
-                f"{t['load_1min_before']:.1f} |"
+                f"{t['load_1min_before']:.1f} | {general} |"
             )
+    g = data.get("generalist_training")
+    if g:
+        lines.append(
+            f"\nThe generalist, trained once: `{g['command']}`, {g['steps']:,} steps in {g['train_s']:.0f} s; its "
+            f"evaluation over drawn airframes: {100 * g['eval_success_rate']:.0f} % · "
+            f"{_cm(g['eval_mean_final_distance_m'])}."
+        )
     return "\n".join(lines)
 
 
@@ -148,10 +161,10 @@ def plot(data: dict, path: Path) -> None:
     fig, axes = plt.subplots(len(panels), 1, figsize=(10, 3.0 * len(panels)), sharex=True)
     x = np.arange(len(names))
     for ax, (title, get) in zip(axes, panels, strict=True):
-        for j, (c, color) in enumerate((("raptor", "tab:red"), ("ours", "tab:blue"))):
-            vals = [get(data["airframes"][n], c) if c in data["airframes"][n] else None for n in names]
+        for j, (c, color) in enumerate((("raptor", "tab:red"), ("ours", "tab:blue"), ("generalist", "tab:green"))):
+            vals = [_get(get, data["airframes"][n], c) for n in names]
             cm = [100 * v if v is not None and math.isfinite(v) else np.nan for v in vals]
-            ax.bar(x + (j - 0.5) * 0.38, cm, 0.38, label=c, color=color)
+            ax.bar(x + (j - 1) * 0.28, cm, 0.28, label=c, color=color)
         ax.axhline(5.0, color="k", lw=0.8, ls="--")  # the hover rule's 5 cm
         ax.set_yscale("log")
         ax.set_ylabel("cm")
@@ -160,6 +173,14 @@ def plot(data: dict, path: Path) -> None:
     axes[-1].set_xticks(x, names, rotation=30, ha="right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def _get(get, rows: dict, c: str):
+    """A figure of controller `c` (None where it was not flown)."""
+    try:
+        return get(rows, c)
+    except KeyError:
+        return None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -175,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     print({"holding": holding, "moving": moving, "rotorpy": rotorpy, "training": training}[args.table](data))
     runs = [rows.get("run", data) for rows in data["airframes"].values()]
     if args.table == "rotorpy":
-        runs = [rows["rotorpy"]["run"] for rows in data["airframes"].values() if "rotorpy" in rows]
+        sides = [rows.get("rotorpy", {}) for rows in data["airframes"].values()]
+        runs = [r for side in sides for k, r in side.items() if k.startswith("run")]
     commits = ", ".join(sorted({r["commit"][:10] for r in runs}))
     loads = [r["load_1min_before"] for r in runs]
     per = {

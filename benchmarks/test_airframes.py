@@ -1,15 +1,18 @@
 """Smoke test of benchmarks/airframes.py (the whole table is `benchmarks/airframes.py run`, then
 `rotorpy`): one airframe from its vehicle file, both controllers, in both simulators. `ours` is
 trained for a few thousand steps only (the table's shape, not its figures), so only RAPTOR's hover
-is held to the hover rule here (it flies the X500: docs/raptor.md)."""
+is held to the hover rule here (it flies the X500: docs/raptor.md). The generalist likewise: trained
+for a few thousand steps over drawn airframes, exported for the X500's file, flown in both."""
 
 import json
 import math
+import subprocess
+import sys
 
 import airframes
 import report_airframes
 
-FLIGHTS = {f: airframes.FLIGHTS[f] for f in ("hover", "mass+30%", "step", "figure8 1 m/s")}
+FLIGHTS = {f: airframes.FLIGHTS[f] for f in ("hover", "mass+30%", "impulse", "step", "figure8 1 m/s")}
 
 
 def test_one_airframe_from_its_file_in_both_simulators_for_both_controllers(tmp_path):
@@ -42,3 +45,18 @@ def test_one_airframe_from_its_file_in_both_simulators_for_both_controllers(tmp_
     for table in (r.holding, r.moving, r.rotorpy):
         assert "| x500 | raptor |" in table(data) and "| x500 | ours |" in table(data)
     assert "| x500 |" in r.training(data)
+
+    # the generalist: quad-train's recipe cut short, exported for the file, flown in both simulators
+    brief = ["--total-steps", "4096", "--num-envs", "16", "--eval-episodes", "4", "--eval-every", "0"]
+    cmd = [sys.executable, "-m", "quadpilot.train.cli", *airframes.GENERALIST_TRAIN, *brief]
+    subprocess.run([*cmd, "--out", str(tmp_path / "generalist")], check=True, capture_output=True)
+    policy = tmp_path / "generalist" / "policy.pt"
+    data = airframes.run_generalist(out, ["x500"], policy, policies, 1, {f: FLIGHTS[f] for f in ("hover", "impulse")})
+    rows = data["airframes"]["x500"]
+    assert rows["generalist_export"]["file_to_policy_s"] > 0.0 and data["generalist_training"]["steps"] >= 4096
+    assert set(rows["generalist"]) == {"hover", "impulse"} and "refused" not in rows["generalist"]["hover"]
+    assert set(rows["ours"]) == set(FLIGHTS)  # the others' rows kept
+    data = airframes.run_rotorpy(out, ["x500"], policies, flights=["hover"], controllers=["generalist"])
+    side = data["airframes"]["x500"]["rotorpy"]
+    assert "failed" not in side["generalist"]["hover"] and side["raptor"]["step"] == step  # RAPTOR's kept
+    assert "| x500 | generalist |" in r.holding(data) and "| x500 | generalist |" in r.rotorpy(data)

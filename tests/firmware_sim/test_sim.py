@@ -197,6 +197,31 @@ def test_lockstep_flight_matches_core_dynamics_step_for_step():
     np.testing.assert_array_equal(rec.final_state, ref.state[0])  # the same code: bit for bit
 
 
+def test_an_impulse_jumps_the_velocity_east_once_at_its_step():
+    """--impulse 1.5@0.2: after the plant's 20th step the velocity is 1.5 m/s more towards east than
+    core.dynamics' (and stays so, as momentum), and nothing else differs at that step."""
+    cfg = config(initial_state=LEVEL, impulse=(1.5, 0.2))
+    ref = Reference(cfg)
+    command = on_the_wire(np.full(4, ref.u_hover))
+    with serving(cfg) as (_, port, result):
+        c = connect(port)
+        read_step(c)
+        for n in range(1, 31):
+            send(c, command)
+            got = wire.state_from_hil_state_quaternion(by_type(read_step(c))["HIL_STATE_QUATERNION"], HOME)
+            truth = ref.step(command)
+            if n == 20:
+                truth = ref.state[0] = truth + np.eye(12)[3] * 1.5
+            assert_state_close(got, truth)
+        c.close()
+        finish(result)
+    assert ref.state[0][3] == pytest.approx(1.5, abs=1e-6)  # the hit carries on: nothing slows it
+    with pytest.raises(ValueError, match="impulse must be"):
+        config(impulse=(25.0, 1.0))
+    with pytest.raises(ValueError, match="impulse must be"):
+        config(impulse=(1.0, -1.0))
+
+
 def test_free_fall_when_disarmed():
     cfg = config(initial_state=(0, 0, 10, 0, 0, 0, 0, 0, 0, 0, 0, 0), target=(0, 0, 10))
     with serving(cfg) as (_, port, _r):

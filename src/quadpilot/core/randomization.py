@@ -69,11 +69,18 @@ class RandomizationConfig:
     """N·m, magnitude of the push moment (direction uniform on the sphere, body frame)."""
     push_duration: Range = (0.1, 0.3)
     """s, length of the push; it starts at a uniform time within the episode."""
+    airframes: bool = False
+    """Draw a whole airframe per episode (`AIRFRAMES`, `draw_airframes`) in place of the nominal
+    vehicle: what its vehicle file would say. The motor map then uses that airframe's hover command,
+    and the scales above (mass, inertia, k_f, k_m) make the true plant differ from its file, as a
+    file that is wrong does; `motor_tau` is drawn as it is; `drag` is per kilogram of the drawn
+    mass (1/s), and `push_force` per kilogram (m/s²) and `push_torque` per kg·m² of its roll inertia
+    (rad/s²). The rotor layout stays the nominal's, scaled by the drawn arm."""
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if f.name in ("name", "push_prob", "wind_direction_deg") or (f.name == "drag" and v is None):
+            if f.name in ("name", "push_prob", "wind_direction_deg", "airframes") or (f.name == "drag" and v is None):
                 continue
             if not (isinstance(v, (tuple, list)) and len(v) == 2 and all(math.isfinite(float(x)) for x in v)):
                 raise ValueError(f"randomization {f.name} must be a (low, high) pair of finite numbers, got {v!r}")
@@ -150,7 +157,74 @@ PRESETS: dict[str, RandomizationConfig] = {
     "params": RandomizationConfig(name="params", wind_speed=(0.0, 0.0), drag=None),
     # default plus, in half the episodes, one push of up to 1.5 N and 0.01 N·m for 0.1–0.3 s
     "pushes": RandomizationConfig(name="pushes", push_prob=0.5, push_force=(0.0, 1.5), push_torque=(0.0, 0.01)),
+    # a new airframe every episode (AIRFRAMES), its file wrong by mass ±30 %, inertia ±20 %, k_f ±20 %
+    # and k_m ±10 % (the errors the airframe benchmark flies), motor lag 0–150 ms, wind up to 2 m/s
+    # through 0.05–0.3 N·s/m per kg, and in a third of the episodes a push of up to 3 m/s² and 30 rad/s²
+    "airframes": RandomizationConfig(
+        name="airframes",
+        airframes=True,
+        mass=(0.7, 1.3),
+        k_f=(0.8, 1.2),
+        motor_tau=(0.0, 0.15),
+        wind_speed=(0.0, 2.0),
+        drag=(0.05, 0.3),
+        push_prob=0.3,
+        push_force=(0.0, 3.0),
+        push_torque=(0.0, 30.0),
+    ),
 }
+
+
+@dataclass(frozen=True)
+class AirframeRanges:
+    """The airframes `draw_airframes` draws from: quad-X vehicles from a 25 g micro to a 3 kg camera
+    quad, each value uniform in its range (the mass log-uniform) and the rest scaled from it. The
+    ranges enclose the ten airframes of the benchmark (Crazyflie 2.1 to the 2.5 kg X500; the arm: see
+    there), so that flying them is interpolation; none of them is drawn as such."""
+
+    mass: Range = (0.025, 3.0)
+    """kg, drawn log-uniformly."""
+    arm: Range = (0.7, 1.5)
+    """× 0.046 m·(mass / 0.03 kg)^(1/3), the arm of a frame whose size grows as its mass's cube
+    root, through the Crazyflie 2.1's 46 mm at 30 g. The set's arms sit between 0.82 and 1.45 of it
+    but for PX4 SIH's quad-X, 1.62; what the arm acts through, the angular acceleration per unit of
+    differential action (arm·weight/(4√2·ixx)), is 16.7 rad/s² for it, above 1 % of the draws."""
+    inertia: Range = (0.15, 0.5)
+    """ixx = iyy = c·mass·arm²; the set's c lies between 0.18 (X500) and 0.43 (PX4 SIH quad-X)."""
+    yaw_inertia: Range = (1.15, 2.1)
+    """izz / ixx; the set's lie between 1.2 (PX4 SIH quad-X) and 2.0 (Crazyflie)."""
+    thrust_to_weight: Range = (1.5, 4.0)
+    """Full thrust over weight (the action's 2× hover ceiling makes more than 2 matter little)."""
+    omega_max: Range = (800.0, 3000.0)
+    """rad/s at full command; k_f follows from it and the thrust-to-weight ratio."""
+    k_m: Range = (0.006, 0.04)
+    """m, yaw torque per newton of thrust; the set's lie between 0.0083 and 0.034."""
+
+
+AIRFRAMES = AirframeRanges()
+
+
+def draw_airframes(rng: np.random.Generator, k: int, ranges: AirframeRanges = AIRFRAMES, gravity: float = 9.81) -> dict:
+    """k airframes as per-drone ParamBatch values (mass, arm, ixx, iyy, izz, k_f, k_m, omega_max;
+    the motor lag and drag are the randomisation's). Draws in a fixed order from `rng`."""
+    r = ranges
+    u = lambda rng_, pair: rng_.uniform(pair[0], pair[1], k)  # noqa: E731
+    mass = np.exp(u(rng, (math.log(r.mass[0]), math.log(r.mass[1]))))
+    arm = 0.046 * np.cbrt(mass / 0.03) * u(rng, r.arm)
+    ixx = u(rng, r.inertia) * mass * arm**2
+    izz = ixx * u(rng, r.yaw_inertia)
+    omega_max = u(rng, r.omega_max)
+    k_f = u(rng, r.thrust_to_weight) * mass * gravity / (4.0 * omega_max**2)
+    return {
+        "mass": mass,
+        "arm": arm,
+        "ixx": ixx,
+        "iyy": ixx.copy(),
+        "izz": izz,
+        "k_f": k_f,
+        "k_m": u(rng, r.k_m),
+        "omega_max": omega_max,
+    }
 
 
 def preset(name: str, vehicle: VehicleParams = SEED_VEHICLE) -> RandomizationConfig:
@@ -161,8 +235,8 @@ def preset(name: str, vehicle: VehicleParams = SEED_VEHICLE) -> RandomizationCon
         cfg = PRESETS[name]
     except KeyError:
         raise ValueError(f"unknown randomization preset {name!r}; known presets: {sorted(PRESETS)}") from None
-    if vehicle.mass == SEED_VEHICLE.mass and vehicle.ixx == SEED_VEHICLE.ixx:
-        return cfg
+    if cfg.airframes or (vehicle.mass == SEED_VEHICLE.mass and vehicle.ixx == SEED_VEHICLE.ixx):
+        return cfg  # drawn airframes: their forces are per kilogram of each already
     m, j = vehicle.mass / SEED_VEHICLE.mass, vehicle.ixx / SEED_VEHICLE.ixx
     scale = lambda r, s: None if r is None else (r[0] * s, r[1] * s)  # noqa: E731
     return dataclasses.replace(
@@ -179,7 +253,7 @@ class Randomizer:
     zero by construction (so a plant without wind or pushes steps bit for bit like a plain one).
     """
 
-    STATE = ("wind", "wind_force", "push_force", "push_torque", "push_start", "push_end")
+    STATE = ("wind", "wind_force", "push_force", "push_torque", "push_start", "push_end", "u_hover")
 
     def __init__(self, cfg: RandomizationConfig, nominal: VehicleParams, n: int, dt: float, dtype=np.float32) -> None:
         if cfg.has_wind and cfg.drag is None and nominal.drag == 0.0:
@@ -195,6 +269,9 @@ class Randomizer:
         self.push_torque = np.zeros((n, 3), self.dtype)  # N·m, body FLU
         self.push_start = np.zeros(n, np.int64)  # step of the episode at which the push starts
         self.push_end = np.zeros(n, np.int64)  # first step without it (start == end: no push)
+        # with `airframes`: each drone's hover command as its (drawn) vehicle file gives it; the
+        # environment's motor map reads this array, so it is only ever written in place
+        self.u_hover = np.full(n, nominal.hover_command, self.dtype)
 
     def resample(self, params: ParamBatch, idx: np.ndarray, rng: np.random.Generator, episode_steps: int) -> ParamBatch:
         """New plants and disturbances for the drones `idx` (int array); returns the new batch.
@@ -203,18 +280,24 @@ class Randomizer:
         idx = np.asarray(idx)
         k = idx.size
         u = lambda r, shape=k: rng.uniform(r[0], r[1], shape)  # noqa: E731
+        if c.airframes:  # what each drone's vehicle file says; the scales below make it wrong
+            file = draw_airframes(rng, k, gravity=nom.gravity)
+            self.u_hover[idx] = np.sqrt(file["mass"] * nom.gravity / nom.n_rotors / file["k_f"]) / file["omega_max"]
+        else:
+            file = {f: np.full(k, getattr(nom, f)) for f in ("mass", "ixx", "iyy", "izz", "k_f", "k_m")}
         inertia = u(c.inertia, (k, 3))
         values = {
-            "mass": nom.mass * u(c.mass),
-            "ixx": nom.ixx * inertia[:, 0],
-            "iyy": nom.iyy * inertia[:, 1],
-            "izz": nom.izz * inertia[:, 2],
-            "k_f": nom.k_f * u(c.k_f),
-            "k_m": nom.k_m * u(c.k_m),
+            **file,
+            "mass": file["mass"] * u(c.mass),
+            "ixx": file["ixx"] * inertia[:, 0],
+            "iyy": file["iyy"] * inertia[:, 1],
+            "izz": file["izz"] * inertia[:, 2],
+            "k_f": file["k_f"] * u(c.k_f),
+            "k_m": file["k_m"] * u(c.k_m),
             "motor_tau": u(c.motor_tau),
         }
         if c.drag is not None:
-            values["drag"] = u(c.drag)
+            values["drag"] = u(c.drag) * (file["mass"] if c.airframes else 1.0)
         drag = values.get("drag", np.full(k, nom.drag))
         if c.has_wind:
             speed = u(c.wind_speed)
@@ -231,8 +314,10 @@ class Randomizer:
             start = rng.integers(0, episode_steps, k)
             self.push_start[idx] = start
             self.push_end[idx] = np.where(on, start + length, start)
-            self.push_force[idx] = _directions(rng, k) * u(c.push_force)[:, None]
-            self.push_torque[idx] = _directions(rng, k) * u(c.push_torque)[:, None]
+            per_force = file["mass"] if c.airframes else 1.0
+            per_torque = file["ixx"] if c.airframes else 1.0
+            self.push_force[idx] = _directions(rng, k) * (u(c.push_force) * per_force)[:, None]
+            self.push_torque[idx] = _directions(rng, k) * (u(c.push_torque) * per_torque)[:, None]
         return params.with_entries(idx, **values)
 
     def external(self, steps: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -253,11 +338,13 @@ class Randomizer:
 
     def load_state_dict(self, state: dict) -> None:
         for k in self.STATE:
+            if k == "u_hover" and k not in state and not self.cfg.airframes:
+                continue  # a checkpoint from before airframes were drawn: the nominal's, as it is
             want = getattr(self, k)
             got = np.asarray(state[k])
             if got.shape != want.shape:
                 raise ValueError(f"randomizer state {k!r} has shape {got.shape}, expected {want.shape}")
-            setattr(self, k, got.astype(want.dtype, copy=True))
+            want[...] = got.astype(want.dtype)  # in place: the environment's motor map holds `u_hover`
 
 
 def _directions(rng: np.random.Generator, k: int) -> np.ndarray:

@@ -67,6 +67,18 @@ def _check_args(args) -> Path:
         raise _BadFlag(f"--target {args.target} needs --format c (it cross-compiles the C)")
     if out.resolve() == ckpt.resolve():
         raise _BadFlag(f"--output {out} is the checkpoint itself; name another file")
+    if args.vehicle is not None:
+        if args.format != "onnx":
+            raise _BadFlag(f"--vehicle needs --format onnx (then export the .pt it writes with --format {args.format})")
+        if out.with_suffix(".pt").resolve() == ckpt.resolve():
+            written = out.with_suffix(".pt")
+            raise _BadFlag(f"--vehicle writes {written}, which is the checkpoint itself; name another --output")
+        from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError, resolve_vehicle
+
+        try:
+            args.vehicle = resolve_vehicle(args.vehicle)
+        except (UnknownVehicleError, VehicleFileError) as e:
+            raise _BadFlag(f"--vehicle: {e}") from None
     return out
 
 
@@ -105,6 +117,14 @@ def main(argv: list[str] | None = None) -> int:
         f"(quadpilot.export.onnx_export.supported_opsets). Default: {DEFAULT_OPSET}",
     )
     p.add_argument(
+        "--vehicle",
+        metavar="NAME|FILE.toml",
+        help="Fly a generalist policy (quad-train --randomize airframes) on this airframe, retrained in nothing: "
+        "its hover command goes into the graph, its rotor order into the action head "
+        "(quadpilot.export.retarget); the retargeted policy is written beside the ONNX file as <name>.pt. "
+        "Default: the policy's own vehicle",
+    )
+    p.add_argument(
         "--parity-samples",
         type=int,
         default=10_000,
@@ -135,6 +155,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.format == "px4-raptor":
             return _main_px4_raptor(args, out)
+        if args.vehicle is not None:
+            args.checkpoint = _retargeted(args, out)
         from quadpilot.train.raptor_distill import CONTRACT, is_student_checkpoint
 
         if is_student_checkpoint(args.checkpoint):
@@ -153,6 +175,24 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+def _retargeted(args, out: Path) -> Path:
+    """Write the policy retargeted to --vehicle as <output>.pt and return its path."""
+    import torch
+
+    from quadpilot.console import atomic_write
+    from quadpilot.train.runs.checkpoint_read import load_checkpoint
+
+    from .retarget import retarget_checkpoint
+
+    vehicle = args.vehicle  # a VehicleParams by now (_check_args)
+    data = retarget_checkpoint(load_checkpoint(args.checkpoint), vehicle, str(args.checkpoint))
+    path = out.with_suffix(".pt")
+    atomic_write(path, lambda f: torch.save(data, f))
+    order = " ".join(str(i + 1) for i in data["extra"]["retargeted"]["rotor_order"])
+    print(f"quad-export: {args.checkpoint} retargeted to {vehicle.name} (rotors driven by outputs {order}): {path}")
+    return path
+
+
 def _failure(e: Exception) -> str | None:
     """The one-line message for an export that failed on its input or its output, None for a bug."""
     from quadpilot.modelfile.model import ModelContractError
@@ -160,7 +200,9 @@ def _failure(e: Exception) -> str | None:
     from quadpilot.train.raptor_distill import StudentCheckpointError
     from quadpilot.train.runs.checkpoint import CheckpointError
 
-    if isinstance(e, (CheckpointError, ModelContractError, StudentCheckpointError, PolicyTarError)):
+    from .retarget import RetargetError
+
+    if isinstance(e, (CheckpointError, ModelContractError, StudentCheckpointError, PolicyTarError, RetargetError)):
         return str(e)
     if isinstance(e, OSError):
         return f"{e.filename + ': ' if e.filename else ''}{e.strerror or e}"

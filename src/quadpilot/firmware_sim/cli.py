@@ -77,6 +77,23 @@ def _wind(text: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
+def _impulse(text: str) -> tuple[float, float]:
+    from .config import MAX_IMPULSE_MPS
+
+    dv, _, at = text.partition("@")
+    try:
+        values = (float(dv), float(at))
+    except ValueError:
+        values = (math.nan, math.nan)
+    dv_ok = math.isfinite(values[0]) and abs(values[0]) <= MAX_IMPULSE_MPS
+    if not (dv_ok and math.isfinite(values[1]) and values[1] >= 0):
+        raise argparse.ArgumentTypeError(
+            f"expected DV@T: a velocity jump east in m/s (within ±{MAX_IMPULSE_MPS:g}) at T s (≥ 0), e.g. 1@2; "
+            f"got {text!r}"
+        )
+    return values
+
+
 def _non_negative(text: str) -> float:
     try:
         v = float(text)
@@ -155,6 +172,14 @@ def passed_on_flags() -> dict[str, dict]:
     _flag(table, "--motor-tau", type=_non_negative, default=None, metavar="S", help="motor time constant, s")
     _flag(table, "--wind", type=_wind, default=d.wind, metavar="E,N,U", help="constant wind, m/s world ENU")
     _flag(table, "--gust", type=_non_negative, default=d.gust, metavar="M/S", help="gust std per axis, m/s")
+    _flag(
+        table,
+        "--impulse",
+        type=_impulse,
+        default=None,
+        metavar="DV@T",
+        help="a hit at T s into each episode: the velocity jumps by DV m/s east (e.g. 1@2)",
+    )
     _flag(
         table, "--init-pos-radius", type=_non_negative, default=d.init_pos_radius, metavar="M", help="start ball radius"
     )
@@ -304,6 +329,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             wind=args.wind,
             gust=args.gust,
             gust_tau_s=args.gust_tau,
+            impulse=args.impulse,
             init_pos_radius=args.init_pos_radius,
             init_vel=args.init_vel,
             init_tilt_deg=args.init_tilt,

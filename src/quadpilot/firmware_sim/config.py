@@ -32,6 +32,7 @@ Scaramuzza, RA-L 2018), not identified for this airframe: a 5 m/s wind then push
 the seed vehicle's weight."""
 
 START_MODES = ("air", "landed")
+MAX_IMPULSE_MPS = 20.0  # m/s, the largest velocity jump `SimConfig.impulse` takes
 """`SimConfig.start`: where an episode starts."""
 
 
@@ -59,6 +60,9 @@ class SimConfig:
     """m/s, standard deviation of wind gusts on each axis (0: none), added to `wind`."""
     gust_tau_s: float = 2.0
     """s, correlation time of the gusts."""
+    impulse: tuple[float, float] | None = None
+    """(m/s, s): a hit, once per episode: at this time into the episode the vehicle's velocity jumps by
+    this much towards east (world +x), the momentum mass × it delivered in one step. None: none."""
     drag: float | None = None
     """N·s/m, linear translational drag on the air-relative velocity, F = drag·(wind − v), world
     frame. None: the preset's own value (0 for the shipped presets, as in training), or
@@ -154,6 +158,10 @@ class SimConfig:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a finite number ≥ 0, got {v!r}")
         check_spin(self.spin_s)
+        if self.impulse is not None:
+            dv, at = self.impulse
+            if not (math.isfinite(dv) and abs(dv) <= MAX_IMPULSE_MPS and math.isfinite(at) and at >= 0):
+                raise ValueError(f"impulse must be (m/s within ±{MAX_IMPULSE_MPS:g}, s ≥ 0), got {self.impulse!r}")
         for name in ("wind", "target"):
             v = getattr(self, name)
             if len(v) != 3 or not all(math.isfinite(float(x)) for x in v):

@@ -169,6 +169,11 @@ class Plant:
             self.on_ground, self.impact_speed, self._contact_acc = False, 0.0, None
         self._keep_in_domain(self.state)
 
+    def hit(self, dv_east: float) -> None:
+        """An impulse: the velocity jumps by `dv_east` m/s towards east (world +x) now."""
+        self.state = self.state.copy()
+        self.state[VX] += dv_east
+
     def _touch_ground(self, before: np.ndarray, s: np.ndarray) -> None:
         """Resolve the contact of the step from `before` whose free-flight end is `s`, in place (see
         the class docstring): velocity impulses, then the position they give, then the level stance."""

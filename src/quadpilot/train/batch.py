@@ -128,6 +128,10 @@ class QuadBatch:
         self.randomizer = (
             Randomizer(cfg.randomization, self.nominal, n, cfg.dt, self.dtype) if cfg.randomization else None
         )
+        if self.randomizer is not None and cfg.randomization.airframes:
+            # a drawn airframe per drone: the motor map uses the hover command of each drone's own
+            # vehicle file, (N,) against the commands' (M, N) rows, kept up to date by the randomizer
+            self.u_hover = self.randomizer.u_hover
         # what a step computes in, allocated once
         self._stepper = dynamics.Stepper(n, m, self.dtype)
         self._observer = ObservationBuilder(2 * n, self.dtype)
@@ -246,12 +250,13 @@ class QuadBatch:
         self.heading[idx] = wrap_angle(starts[:, YAW] + offset)
         if self.randomizer is not None:  # a new ParamBatch (dynamics re-derives its constants)
             self.params = self.randomizer.resample(self.params, idx, rng, c.episode_steps)
+        u_hover = self.u_hover if np.ndim(self.u_hover) == 0 else self.u_hover[idx][:, None]
         if c.init_rotor == "hover":
-            self._rotor.set_rows(idx, self.u_hover)
+            self._rotor.set_rows(idx, u_hover)
         elif c.init_rotor == "rest":
             self._rotor.set_rows(idx, self.dtype.type(0.0))
         else:  # "random": drawn only with this option, so the default draws what it always drew
-            speeds = (self.u_hover * rng.random(k)).astype(self.dtype)
+            speeds = (np.reshape(u_hover, -1) * rng.random(k)).astype(self.dtype)
             self._rotor.set_rows(idx, np.broadcast_to(speeds[:, None], (k, self._rotor.rows.shape[0])))
         self.steps[idx] = 0
         self.ep_return[idx] = 0.0

@@ -238,8 +238,11 @@ def _add_randomize_option(p: argparse.ArgumentParser) -> None:
         metavar="PRESET",
         help="Randomise the plant per episode (domain randomisation, quadpilot.core.randomization): "
         "default (mass and inertia ±20 %%, k_f and k_m ±10 %%, motor lag 0-30 ms, wind up to 1.5 m/s), "
-        "params (the same without wind) or pushes (default plus random pushes). The policy observes nothing "
-        "new and keeps the nominal hover command. Without PRESET: default. Default: off.",
+        "params (the same without wind), pushes (default plus random pushes) or airframes (a new airframe every "
+        "episode, 25 g to 3 kg, quadpilot.core.randomization.AIRFRAMES, its plant off its file by mass ±30 %%, k_f "
+        "±20 %%: a generalist, which quad-export --vehicle FILE then exports for any quad-X). The policy observes "
+        "nothing new and keeps the nominal hover command (airframes: the drawn file's). Without PRESET: default. "
+        "Default: off.",
     )
 
 

@@ -1,0 +1,95 @@
+"""A generalist policy on one airframe: its vehicle file's hover command and rotor order, nothing learned.
+
+A policy trained with `quad-train --randomize airframes` (`core.randomization.AIRFRAMES`) never saw
+one vehicle: every episode drew a new airframe, and the motor map used that airframe's own hover
+command, as its vehicle file would state it (and the true plant differed from the file, as a wrong
+file does). To fly a given vehicle, nothing is retrained. `retarget_checkpoint` gives the policy
+file that vehicle as its environment, so that the exported graph's motor map holds the file's
+hover command and the metadata describes the file's airframe. It also permutes the rows of the
+action head into the file's rotor order: output i of the head drives the training layout's rotor i,
+and the file may number its rotors otherwise (RotorPy's airframes start at front-left).
+
+`quad-export --vehicle FILE` calls it and writes the result beside the ONNX file (`<name>.pt`), so
+the source checksum the ONNX metadata records belongs to a file that exists.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import torch
+
+from quadpilot.core.params import VehicleParams, unit_layout
+
+
+class RetargetError(ValueError):
+    """The policy or the vehicle does not allow it: one line that says which and why."""
+
+
+def rotor_permutation(trained: tuple, target: tuple) -> tuple[int, ...]:
+    """For each rotor j of `target` (unit layout rows (x, y, spin), body FLU), the rotor i of
+    `trained` that sits in the same direction from the centre (within 60°) and spins the same way.
+    RetargetError when that is not one-to-one."""
+    if len(trained) != len(target):
+        raise RetargetError(f"the vehicle has {len(target)} rotors; the policy drives {len(trained)}")
+    order = []
+    for j, (x, y, spin) in enumerate(target):
+        bearing = math.atan2(y, x)
+        best = None
+        for i, (xi, yi, si) in enumerate(trained):
+            gap = abs(math.remainder(math.atan2(yi, xi) - bearing, math.tau))
+            if si == spin and gap < math.radians(60.0) and (best is None or gap < best[0]):
+                best = (gap, i)
+        if best is None:
+            side = f"at {math.degrees(bearing):.0f}° (FLU, from the nose, counter-clockwise)"
+            raise RetargetError(
+                f"the vehicle's rotor {j + 1} {side}, spin {'+' if spin > 0 else '-'}, has no rotor of the "
+                "policy's quad-X layout within 60° that spins the same way"
+            )
+        order.append(best[1])
+    if sorted(order) != list(range(len(trained))):
+        raise RetargetError(f"the vehicle's rotors map onto the policy's as {order}, not one to one")
+    return tuple(order)
+
+
+def _head_names(ckpt: dict) -> tuple[str, str]:
+    model = ckpt["model"]
+    if "actor_head.weight" in model:  # the LSTM (networks.RecurrentActorCritic)
+        return "actor_head.weight", "actor_head.bias"
+    layers = sorted(
+        {k.rsplit(".", 1)[0] for k in model if k.startswith("actor.") and k.endswith(".weight")},
+        key=lambda k: int(k.split(".")[1]),
+    )
+    return f"{layers[-1]}.weight", f"{layers[-1]}.bias"
+
+
+def retarget_checkpoint(ckpt: dict, vehicle: VehicleParams, source: str = "policy") -> dict:
+    """A copy of the checkpoint `ckpt` (a loaded policy.pt) that flies `vehicle`: its environment is
+    `vehicle` without randomisation, its action head permuted into the vehicle's rotor order."""
+    from quadpilot.train.envs import EnvConfig
+
+    env = EnvConfig.from_json(ckpt["env_config"])
+    if env.randomization is None or not env.randomization.airframes:
+        raise RetargetError(
+            f"{source} was trained for one airframe ({env.params.name}); --vehicle flies another file only with a "
+            "policy trained over drawn airframes (quad-train --randomize airframes)"
+        )
+    if ckpt.get("algo", "ppo") != "ppo":
+        raise RetargetError(f"{source}: only PPO policies are retargeted, this one is {ckpt.get('algo')!r}")
+    order = rotor_permutation(unit_layout(env.params), unit_layout(vehicle))
+    out = copy.copy(ckpt)
+    out["model"] = dict(ckpt["model"])
+    index = torch.tensor(order)
+    for name in (*_head_names(ckpt), "log_std"):  # the action's rows (and its spread), per rotor
+        if name in ckpt["model"]:
+            out["model"][name] = ckpt["model"][name].index_select(0, index).clone()
+    out["env_config"] = dataclasses.replace(env, vehicle=vehicle, randomization=None).to_json()
+    out["extra"] = {
+        **dict(ckpt.get("extra", {})),
+        "retargeted": {"from": source, "vehicle": vehicle.name, "rotor_order": list(order)},
+    }
+    for k in ("optimizer", "trainer", "env", "rng"):  # a deployable file, not a resumable one
+        out[k] = {}
+    return out

@@ -1,0 +1,93 @@
+"""quad-export --vehicle: a generalist policy (trained over drawn airframes) exported for one vehicle
+file: the file's rotor order (each rotor driven by the output of the training layout's rotor in the
+same corner with the same spin), the file's hover command in the graph, the file in the metadata,
+and one-line refusals for a one-airframe policy, a layout it cannot drive and a bad flag."""
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+
+from quadpilot.core.dynamics import action_to_command
+from quadpilot.core.params import QUAD_X_UNIT, get_preset, unit_layout
+from quadpilot.core.vehicle_file import load_vehicle_file
+from quadpilot.export.cli import main
+from quadpilot.export.retarget import RetargetError, rotor_permutation
+from quadpilot.runtime.backends import load_policy as load_runtime_policy
+from quadpilot.train.envs import make_config
+from quadpilot.train.ppo import PPOConfig
+from quadpilot.train.runs.checkpoint import load_policy, save_untrained_policy
+
+ROTORPY_ORDER = "benchmarks/airframes/rotorpy_hummingbird.toml"  # RotorPy numbers from front-left
+ASYMMETRIC = "benchmarks/airframes/asymmetric.toml"
+
+
+def test_rotor_permutation_matches_corners_and_spins():
+    assert rotor_permutation(QUAD_X_UNIT, QUAD_X_UNIT) == (0, 1, 2, 3)
+    # RotorPy: front-left (cw), front-right (ccw), rear-right (cw), rear-left (ccw)
+    assert rotor_permutation(QUAD_X_UNIT, unit_layout(load_vehicle_file(ROTORPY_ORDER))) == (2, 0, 3, 1)
+    # a frame stretched out of square keeps each rotor in its corner
+    assert rotor_permutation(QUAD_X_UNIT, unit_layout(load_vehicle_file(ASYMMETRIC))) == (0, 1, 2, 3)
+    flipped = tuple((x, y, -s) for x, y, s in QUAD_X_UNIT)  # every rotor spinning the other way
+    with pytest.raises(RetargetError, match="spins the same way"):
+        rotor_permutation(QUAD_X_UNIT, flipped)
+    with pytest.raises(RetargetError, match="6 rotors"):
+        rotor_permutation(QUAD_X_UNIT, QUAD_X_UNIT + QUAD_X_UNIT[:2])
+
+
+@pytest.fixture(scope="module")
+def generalists(tmp_path_factory):
+    """Untrained generalists (head gain 1, so that commands differ per rotor): LSTM and MLP."""
+    d = tmp_path_factory.mktemp("generalist")
+    env = make_config("hover", randomization="airframes")
+    return {
+        arch: save_untrained_policy(d / f"{arch}.pt", PPOConfig(arch=arch, lstm_hidden=16), env)
+        for arch in ("lstm", "mlp")
+    }
+
+
+@pytest.mark.parametrize("arch", ["lstm", "mlp"])
+def test_exported_file_drives_the_files_rotors_with_its_hover_command(generalists, arch, tmp_path, capsys):
+    out = tmp_path / "hb.onnx"
+    assert main([str(generalists[arch]), "-o", str(out), "--vehicle", ROTORPY_ORDER, "--parity-samples", "200"]) == 0
+    text = capsys.readouterr().out
+    assert "rotors driven by outputs 3 1 4 2" in text and "parity within" in text
+    vehicle = load_vehicle_file(ROTORPY_ORDER)
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert json.loads(meta["quadpilot.vehicle"])["name"] == vehicle.name
+    assert (tmp_path / "hb.pt").is_file()  # the retargeted policy the metadata's checksum names
+    # the same observations through the original policy (outputs in quad-X order) and the file
+    original = load_policy(generalists[arch])
+    obs = np.random.default_rng(0).normal(0, 0.3, (8, 18)).astype(np.float32)
+    if original.recurrent:
+        actions, _ = original.step(obs, original.initial_state(8))
+    else:
+        actions = original(obs)
+    expect = action_to_command(actions, vehicle.hover_command)[:, [2, 0, 3, 1]]
+    # the runtime flies one drone: a fresh policy per observation gives each its zero start state
+    got = np.stack([load_runtime_policy(str(out), backend="numpy").act(o) for o in obs])
+    np.testing.assert_allclose(got, expect, atol=2e-6)
+
+
+def test_refusals_are_one_line(generalists, tmp_path, capsys):
+    one_airframe = save_untrained_policy(tmp_path / "one.pt", PPOConfig(arch="mlp"), make_config("hover"))
+    assert main([str(one_airframe), "-o", str(tmp_path / "a.onnx"), "--vehicle", ROTORPY_ORDER]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "--randomize airframes" in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "a.onnx").exists()
+    assert main([str(generalists["mlp"]), "-o", str(tmp_path / "b.onnx"), "--vehicle", "no_such_vehicle"]) == 2
+    assert "--vehicle: unknown vehicle" in capsys.readouterr().err
+    assert main([str(generalists["mlp"]), "--format", "c", "-o", str(tmp_path / "c"), "--vehicle", "crazyflie"]) == 2
+    assert "--vehicle needs --format onnx" in capsys.readouterr().err
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\nmass = -1\n')
+    assert main([str(generalists["mlp"]), "-o", str(tmp_path / "d.onnx"), "--vehicle", str(bad)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_the_shipped_presets_are_retargeted_by_name(generalists, tmp_path, capsys):
+    out = tmp_path / "cf.onnx"
+    assert main([str(generalists["mlp"]), "-o", str(out), "--vehicle", "crazyflie", "--parity-samples", "200"]) == 0
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert json.loads(meta["quadpilot.vehicle"])["mass"] == get_preset("crazyflie").mass
