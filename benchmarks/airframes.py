@@ -219,7 +219,21 @@ ROTORPY_FLIGHTS = {
     "figure8 1 m/s": ["--maneuver", "figure8:1"],
     "figure8 2 m/s": ["--maneuver", "figure8:2"],
     "figure8 4 m/s": ["--maneuver", "figure8:4"],
+    "mass+30%": ["--target=0.6,-0.5,0.55"],
+    "mass-30%": ["--target=0.6,-0.5,0.55"],
+    "thrust+20%": ["--target=0.6,-0.5,0.55"],
+    "thrust-20%": ["--target=0.6,-0.5,0.55"],
 }
+ROTORPY_PLANT = {
+    "mass+30%": {"mass": 1.3},
+    "mass-30%": {"mass": 0.7},
+    "thrust+20%": {"k_f": 1.2},
+    "thrust-20%": {"k_f": 0.8},
+}
+"""The wrong-file flights in RotorPy: its plant is the vehicle file scaled so (`VehicleParams.scaled`),
+while the policy keeps the file it was made for (RAPTOR: the nominal file's rotor order)."""
+ROTORPY_DEFAULT = ("hover", "step", "figure8 1 m/s", "figure8 2 m/s", "figure8 4 m/s")
+"""`rotorpy`'s flights when none are named (the wrong-file ones are flown by name)."""
 """RotorPy's side (rotorpy 3.0.0 PX4Multirotor, the vehicle file's parameters through
 `core.rotorpy_vehicle.rotorpy_params`, 100 Hz, MAVLink 1; tests/sitl/test_rotorpy.py's `fly`): one flight
 each from RotorPy's start, 5 m up, level, at rest with its rotors at rest, home from the first fix.
@@ -227,9 +241,14 @@ each from RotorPy's start, 5 m up, level, at rest with its rotors at rest, home 
 the maneuvers are flown about the start."""
 
 
-def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path) -> dict:
+ATTEMPTS = 3
+"""RotorPy flights per cell at most, while its steps go on without the node's answer (see `run_rotorpy`)."""
+
+
+def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path, plant: dict | None = None) -> dict:
     """One flight in RotorPy, measured from RotorPy's own ground truth (its positions brought into
-    the node's local frame: metres from the start, on the node's Earth)."""
+    the node's local frame: metres from the start, on the node's Earth); `plant`: RotorPy flies the
+    vehicle file scaled so (`ROTORPY_PLANT`)."""
     from quadpilot.core.maneuver import STEP_DISTANCE_M, FigureEight, Step, parse_maneuver
     from quadpilot.core.mission import SUCCESS_TOLERANCE_M
 
@@ -240,7 +259,13 @@ def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path) -
     duration = maneuver.duration_s if maneuver is not None else 5.0
     node_flags = (*flight, *(("--vehicle", vehicle) if policy.startswith("raptor:") else ()))
     target = None if maneuver is not None else tuple(float(v) for v in flight[0].split("=")[1].split(","))
-    case = t.RotorPyFlight(Path(policy), 100, 1, 0.05, vehicle=vehicle, duration_s=duration, target=target)
+    flown = vehicle
+    if plant:
+        from quadpilot.core.vehicle_file import load_vehicle_file, vehicle_to_toml
+
+        flown = str(tmp / "plant.toml")
+        Path(flown).write_text(vehicle_to_toml(load_vehicle_file(vehicle).scaled(**plant)))
+    case = t.RotorPyFlight(Path(policy), 100, 1, 0.05, vehicle=flown, duration_s=duration, target=target)
     case = dataclasses.replace(case, node_flags=node_flags)
     try:
         record, summary, _, node = t.fly(case, tmp)
@@ -327,10 +352,14 @@ def run_rotorpy(
     policies: Path,
     flights: list[str] | None = None,
     controllers: list[str] | None = None,
+    missed_only: bool = False,
 ) -> dict:
     """RotorPy's side of `airframes` (vehicle files only), RAPTOR, the policies `run` trained into
     `policies` and the generalist exported there, written into `out` (the JSON `run` wrote) under
-    each airframe's "rotorpy"; `controllers`: only these (the others' rows are kept)."""
+    each airframe's "rotorpy"; `controllers`: only these (the others' rows are kept). A flight in
+    which RotorPy stepped on without the node's answer (`missed_steps`: RotorPy waits 10 ms, and a
+    late answer then lags every later step by one) is flown again, up to `ATTEMPTS` times in all;
+    `attempts` records how many it took. `missed_only`: only the cells of `out` that have missed steps."""
     import rotorpy_flights
 
     t = rotorpy_flights._load_test_module()
@@ -358,11 +387,19 @@ def run_rotorpy(
         }
         for controller in controllers or ("raptor", "ours"):
             policy = chosen[controller]
-            side["run" if controllers is None else f"run_{controller}"] = when
-            side[controller] = {}
-            for f in flights or ROTORPY_FLIGHTS:
-                with tempfile.TemporaryDirectory() as tmp:
-                    side[controller][f] = rotorpy_flight(t, policy, vehicle, ROTORPY_FLIGHTS[f], Path(tmp))
+            whole = controllers is None and flights is None and not missed_only
+            what = "the flights with missed steps, again" if missed_only else ", ".join(flights or ROTORPY_DEFAULT)
+            side["run" if whole else f"run {controller}: {what}"] = when
+            side[controller] = {**side.get(controller, {})}  # flights flown before and not now are kept
+            for f in flights or ROTORPY_DEFAULT:
+                if missed_only and not side[controller].get(f, {}).get("missed_steps"):
+                    continue
+                for attempt in range(1, ATTEMPTS + 1):
+                    with tempfile.TemporaryDirectory() as tmp:
+                        flown = rotorpy_flight(t, policy, vehicle, ROTORPY_FLIGHTS[f], Path(tmp), ROTORPY_PLANT.get(f))
+                    side[controller][f] = {**flown, "attempts": attempt}
+                    if not flown.get("missed_steps"):
+                        break
                 print(f"{name} rotorpy {controller} {f}: {side[controller][f]}", flush=True)
         out.write_text(json.dumps(data, indent=1) + "\n")  # after each airframe: a long run keeps what it flew
     return data
@@ -384,10 +421,13 @@ def main(argv: list[str] | None = None) -> int:
     rp.add_argument("out", type=Path)
     rp.add_argument("--policies", type=Path, required=True)
     rp.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every vehicle file.")
-    rp.add_argument("--flight", action="append", choices=sorted(ROTORPY_FLIGHTS), help="Default: every one.")
+    rp.add_argument(
+        "--flight", action="append", choices=sorted(ROTORPY_FLIGHTS), help=f"Default: {', '.join(ROTORPY_DEFAULT)}."
+    )
     rp.add_argument(
         "--controller", action="append", choices=("raptor", "ours", "generalist"), help="Default: raptor and ours."
     )
+    rp.add_argument("--missed", action="store_true", help="Fly again only the cells of OUT with missed steps.")
     g = sub.add_parser("generalist", help="The generalist, exported per airframe, in our simulator.")
     g.add_argument("out", type=Path)
     g.add_argument("--policy", type=Path, required=True, help="The generalist's policy.pt (GENERALIST_TRAIN).")
@@ -397,7 +437,9 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help="Default: every one.")
     args = p.parse_args(argv)
     if args.cmd == "rotorpy":
-        run_rotorpy(args.out, args.airframe or list(AIRFRAMES), args.policies, args.flight, args.controller)
+        run_rotorpy(
+            args.out, args.airframe or list(AIRFRAMES), args.policies, args.flight, args.controller, args.missed
+        )
         return 0
     if args.cmd == "generalist":
         chosen = {f: FLIGHTS[f] for f in args.flight} if args.flight else None

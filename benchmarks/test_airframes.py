@@ -59,4 +59,9 @@ def test_one_airframe_from_its_file_in_both_simulators_for_both_controllers(tmp_
     data = airframes.run_rotorpy(out, ["x500"], policies, flights=["hover"], controllers=["generalist"])
     side = data["airframes"]["x500"]["rotorpy"]
     assert "failed" not in side["generalist"]["hover"] and side["raptor"]["step"] == step  # RAPTOR's kept
+    # a wrong file in RotorPy: its plant 30 % heavier than the file RAPTOR is flown with
+    data = airframes.run_rotorpy(out, ["x500"], policies, flights=["mass+30%"], controllers=["raptor"])
+    raptor = data["airframes"]["x500"]["rotorpy"]["raptor"]
+    heavy, nominal = raptor["mass+30%"]["mean_error_last_2s_m"], raptor["hover"]["mean_error_last_2s_m"]
+    assert "failed" not in raptor["mass+30%"] and heavy != nominal  # the same flight on another plant
     assert "| x500 | generalist |" in r.holding(data) and "| x500 | generalist |" in r.rotorpy(data)

@@ -387,9 +387,11 @@ ALLOWED: tuple[tuple[str, str], ...] = (
     (r"\b500\s+steps|\b0\.01\s+s\b", "the episode: 500 steps of 0.01 s (EnvConfig)"),
     (
         r"headings\s+within\s+30°|\b4\s+m\s+by\s+2\s+m|ramped\s+up\s+over\s+3\s+s|\b1,\s+2\s+and\s+4\s+m/s|"
-        r"\b1\s+and\s+2\s+m/s|\bat\s+[124]\s+m/s|the\s+5\s+s\s+ended|within\s+its\s+10\s+ms",
+        r"\b1\s+and\s+2\s+m/s|\bat\s+[124]\s+m/s|the\s+5\s+s\s+ended|within\s+its\s+10\s+ms|"
+        r"hit\s+3\s+s\s+into\s+a\s+7\s+s\s+hover|hover\s+to\s+0\.95\s+m|motor\s+lag\s+of\s+0\s+to\s+150\s+ms",
         "the airframe comparison's flights (core.maneuver, benchmarks/airframes.py): commanded headings, the "
-        "figure-eight's size, ramp and speeds, the step's duration, RotorPy's wait for an answer",
+        "figure-eight's size, ramp and speeds, the step's duration, RotorPy's wait for an answer, the impulse "
+        "flight, RotorPy's hover target, the generalist's drawn motor lag (core.randomization)",
     ),
     (
         r"\b10×|\b50×\s+the\s+default|\b10×\s+the\s+default|20×\s+larger\s+rewards\s+give\s+400×|~14×",
