@@ -333,13 +333,16 @@ class Randomizer:
                 torque = on * self.push_torque
         return force, torque
 
+    def _keys(self) -> tuple[str, ...]:
+        """What a checkpoint holds: the hover commands only for drawn airframes (they are the
+        nominal's otherwise), so a plain randomised run's checkpoint is what it always was."""
+        return self.STATE if self.cfg.airframes else tuple(k for k in self.STATE if k != "u_hover")
+
     def state_dict(self) -> dict[str, np.ndarray]:
-        return {k: getattr(self, k).copy() for k in self.STATE}
+        return {k: getattr(self, k).copy() for k in self._keys()}
 
     def load_state_dict(self, state: dict) -> None:
-        for k in self.STATE:
-            if k == "u_hover" and k not in state and not self.cfg.airframes:
-                continue  # a checkpoint from before airframes were drawn: the nominal's, as it is
+        for k in self._keys():
             want = getattr(self, k)
             got = np.asarray(state[k])
             if got.shape != want.shape:
