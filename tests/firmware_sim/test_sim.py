@@ -216,6 +216,16 @@ def test_an_impulse_jumps_the_velocity_east_once_at_its_step():
         c.close()
         finish(result)
     assert ref.state[0][3] == pytest.approx(1.5, abs=1e-6)  # the hit carries on: nothing slows it
+    # a hit at T = 0 lands after the first step (the start state is sent before any step)
+    cfg = config(initial_state=LEVEL, impulse=(-0.5, 0.0))
+    with serving(cfg) as (_, port, result):
+        c = connect(port)
+        read_step(c)
+        send(c, command)
+        got = wire.state_from_hil_state_quaternion(by_type(read_step(c))["HIL_STATE_QUATERNION"], HOME)
+        c.close()
+        finish(result)
+    assert got[3] == pytest.approx(-0.5, abs=0.01)
     with pytest.raises(ValueError, match="impulse must be"):
         config(impulse=(25.0, 1.0))
     with pytest.raises(ValueError, match="impulse must be"):

@@ -88,6 +88,7 @@ def test_a_bad_setting_is_one_line_and_exit_2(bad, tmp_path, capsys):
         (["--task", "hover", "--algo", "sac"], "--algo"),
         (["--task", "hover", "--arch", "lstm"], "--arch"),
         (["--task", "hover", "--resume"], "not resumable"),
+        (["--task", "hover", "--randomize", "airframes"], "distilled for one vehicle"),
     ],
 )
 def test_options_the_contract_cannot_honour_are_refused(argv, says, tmp_path, capsys):

@@ -179,8 +179,9 @@ PRESETS: dict[str, RandomizationConfig] = {
 class AirframeRanges:
     """The airframes `draw_airframes` draws from: quad-X vehicles from a 25 g micro to a 3 kg camera
     quad, each value uniform in its range (the mass log-uniform) and the rest scaled from it. The
-    ranges enclose the ten airframes of the benchmark (Crazyflie 2.1 to the 2.5 kg X500; the arm: see
-    there), so that flying them is interpolation; none of them is drawn as such."""
+    ranges hold the masses, inertia shapes, yaw inertias and yaw torques of the ten airframes of the
+    benchmark (Crazyflie 2.1 to the 2.5 kg X500), though not every value of theirs (the arm, the
+    thrust-to-weight and omega_max: see there and docs/raptor.md); none of them is drawn as such."""
 
     mass: Range = (0.025, 3.0)
     """kg, drawn log-uniformly."""

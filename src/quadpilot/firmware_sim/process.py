@@ -221,8 +221,8 @@ class Simulator:
         the peer computes its answer meanwhile); returns the new step."""
         plant.step(command)
         n += 1
-        if self.cfg.impulse is not None and n == round(self.cfg.impulse[1] / self.cfg.dt):
-            plant.hit(self.cfg.impulse[0])  # before this step's messages: the peer sees it next
+        if self.cfg.impulse is not None and n == max(1, round(self.cfg.impulse[1] / self.cfg.dt)):
+            plant.hit(self.cfg.impulse[0])  # T < dt: after the first step; before its messages either way
         ep.steps_done = n
         self.stats.steps += 1
         self._io.send_step(link, plant, n, self._sensors)

@@ -34,6 +34,11 @@ def check(args) -> None:
     for name, allowed, why in CHECKS:
         if getattr(args, name, allowed[0]) not in allowed:
             raise UsageError(why)
+    if getattr(args, "randomize", None) == "airframes":
+        raise UsageError(
+            f"--randomize airframes: the {CONTRACT} policy is distilled for one vehicle (--vehicle); "
+            "use another --randomize preset or none"
+        )
 
 
 def _same_vehicle(a, b) -> bool:
