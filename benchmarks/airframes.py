@@ -42,6 +42,7 @@ import argparse
 import dataclasses
 import datetime as _dt
 import json
+import math
 import os
 import platform
 import shutil
@@ -320,12 +321,14 @@ def run_generalist(
         raise SystemExit(f"airframes: {out} was flown with {data.get('episodes')} episodes; give --episodes to match")
     run_dir = policy.parent
     ev = json.loads((run_dir / "eval.json").read_text()) if (run_dir / "eval.json").is_file() else {}
-    metrics = (run_dir / "metrics.csv").read_text().splitlines() if (run_dir / "metrics.csv").is_file() else []
-    last = dict(zip(metrics[0].split(","), metrics[-1].split(","), strict=True)) if len(metrics) > 1 else {}
+    from quadpilot.train.runs.runlog import read_metrics
+
+    m = read_metrics(run_dir / "metrics.csv") if (run_dir / "metrics.csv").is_file() else {}
+    rows = len(m.get("update", ()))
     data["generalist_training"] = {
         "command": "quad-train " + " ".join(GENERALIST_TRAIN),
-        "steps": int(float(last.get("global_step", 0))),
-        "train_s": float(last.get("time_s", "nan")),
+        "steps": int(m["global_step"][-1]) if rows else 0,
+        "train_s": float(m["time_s"][-1]) if rows else math.nan,
         "eval_success_rate": ev.get("success_rate"),
         "eval_mean_final_distance_m": ev.get("mean_final_distance_m"),
     }

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .params import SEED_VEHICLE, ParamBatch, VehicleParams
+from .params import GRAVITY, SEED_VEHICLE, ParamBatch, VehicleParams
 
 Range = tuple[float, float]
 
@@ -205,17 +205,19 @@ class AirframeRanges:
 AIRFRAMES = AirframeRanges()
 
 
-def draw_airframes(rng: np.random.Generator, k: int, ranges: AirframeRanges = AIRFRAMES, gravity: float = 9.81) -> dict:
+def draw_airframes(
+    rng: np.random.Generator, k: int, ranges: AirframeRanges = AIRFRAMES, gravity: float = GRAVITY
+) -> dict:
     """k airframes as per-drone ParamBatch values (mass, arm, ixx, iyy, izz, k_f, k_m, omega_max;
     the motor lag and drag are the randomisation's). Draws in a fixed order from `rng`."""
     r = ranges
-    u = lambda rng_, pair: rng_.uniform(pair[0], pair[1], k)  # noqa: E731
-    mass = np.exp(u(rng, (math.log(r.mass[0]), math.log(r.mass[1]))))
-    arm = 0.046 * np.cbrt(mass / 0.03) * u(rng, r.arm)
-    ixx = u(rng, r.inertia) * mass * arm**2
-    izz = ixx * u(rng, r.yaw_inertia)
-    omega_max = u(rng, r.omega_max)
-    k_f = u(rng, r.thrust_to_weight) * mass * gravity / (4.0 * omega_max**2)
+    u = lambda pair: rng.uniform(pair[0], pair[1], k)  # noqa: E731
+    mass = np.exp(u((math.log(r.mass[0]), math.log(r.mass[1]))))
+    arm = 0.046 * np.cbrt(mass / 0.03) * u(r.arm)
+    ixx = u(r.inertia) * mass * arm**2
+    izz = ixx * u(r.yaw_inertia)
+    omega_max = u(r.omega_max)
+    k_f = u(r.thrust_to_weight) * mass * gravity / (4.0 * omega_max**2)
     return {
         "mass": mass,
         "arm": arm,
@@ -223,7 +225,7 @@ def draw_airframes(rng: np.random.Generator, k: int, ranges: AirframeRanges = AI
         "iyy": ixx.copy(),
         "izz": izz,
         "k_f": k_f,
-        "k_m": u(rng, r.k_m),
+        "k_m": u(r.k_m),
         "omega_max": omega_max,
     }
 

@@ -82,6 +82,8 @@ class Simulator:
         self._signing = None  # signing state carried from one episode's link to the next
         self._io = Protocol(cfg, self.stats)
         self._sensors: Sensors | None = None  # this episode's sensors (and noise processes)
+        # the step after which `cfg.impulse` hits (T below one step: after the first); None: no hit
+        self._impulse_step = None if cfg.impulse is None else max(1, round(cfg.impulse[1] / cfg.dt))
 
     @property
     def address(self) -> Address | None:
@@ -221,8 +223,8 @@ class Simulator:
         the peer computes its answer meanwhile); returns the new step."""
         plant.step(command)
         n += 1
-        if self.cfg.impulse is not None and n == max(1, round(self.cfg.impulse[1] / self.cfg.dt)):
-            plant.hit(self.cfg.impulse[0])  # T < dt: after the first step; before its messages either way
+        if n == self._impulse_step:
+            plant.hit(self.cfg.impulse[0])  # before this step's messages: the peer sees it next
         ep.steps_done = n
         self.stats.steps += 1
         self._io.send_step(link, plant, n, self._sensors)
