@@ -143,6 +143,20 @@ def train(vehicle: str, folder: Path, extra: list[str]) -> dict:
     }
 
 
+OTHER_ROWS = ("generalist", "generalist_export", "generalist_flights_run", "rotorpy")
+"""An airframe's rows that `generalist` and `rotorpy` write: `run` flies the airframe again without them."""
+
+
+def _clear_training(folder: Path) -> None:
+    """Remove an earlier training of `ours` from `folder`, not the generalist exported there."""
+    if not folder.is_dir():
+        return
+    for item in folder.iterdir():
+        if item.name.startswith("generalist."):
+            continue
+        shutil.rmtree(item) if item.is_dir() else item.unlink()
+
+
 def run(
     out: Path,
     airframes: list[str],
@@ -182,8 +196,9 @@ def run(
             rows = data["airframes"].setdefault(name, {})
             rows["vehicle"] = vehicle.replace(str(ROOT) + "/", "")
             when = {"started": data["started"], "commit": commit, "load_1min_before": os.getloadavg()[0]}
-            if flights is None:  # the whole airframe again
-                rows = data["airframes"][name] = {"vehicle": rows["vehicle"], "run": when}
+            if flights is None:  # the whole airframe again; the other subcommands' rows stay
+                kept = {k: v for k, v in rows.items() if k in OTHER_ROWS}
+                rows = data["airframes"][name] = {"vehicle": rows["vehicle"], "run": when, **kept}
             else:  # these flights added to the airframe's others, with when they were flown
                 rows.setdefault("flights_run", {}).update({f: when for f in flights})
             folder = keep / name
@@ -192,7 +207,7 @@ def run(
                 if flights is None or "ours_training" not in rows:  # else the first training's record stays
                     rows["ours_training"] = json.loads((folder / "training.json").read_text())
             else:
-                shutil.rmtree(folder, ignore_errors=True)  # an earlier run's, never finished: trained again
+                _clear_training(folder)  # an earlier run's, never finished: trained again
                 trained = train(vehicle, folder, train_flags or [])
                 (folder / "training.json").write_text(json.dumps(trained, indent=1) + "\n")
                 if flights is not None and "ours_training" in rows:
@@ -340,10 +355,14 @@ def run_generalist(
             rows["generalist_export"] = generalist_policy(policy, vehicle, policies / name)
             rows["generalist_export"]["run"] = {"commit": commit, "load_1min_before": os.getloadavg()[0]}
             made = str(policies / name / "generalist.onnx")
-            rows["generalist"] = {
-                f: fly(made, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()
-            }
-            for f, r in rows["generalist"].items():
+            flown = {f: fly(made, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()}
+            # named flights join the others (a new export of the same policy file flies as the old)
+            rows["generalist"] = {**rows.get("generalist", {}), **flown} if flights else flown
+            if flights:
+                rows.setdefault("generalist_flights_run", {}).update(
+                    {f: rows["generalist_export"]["run"] for f in flown}
+                )
+            for f, r in flown.items():
                 print(f"{name} generalist {f}: {r}", flush=True)
             out.write_text(json.dumps(data, indent=1) + "\n")
     return data
@@ -394,7 +413,8 @@ def run_rotorpy(
             what = "the flights with missed steps, again" if missed_only else ", ".join(flights or ROTORPY_DEFAULT)
             side["run" if whole else f"run {controller}: {what}"] = when
             side[controller] = {**side.get(controller, {})}  # flights flown before and not now are kept
-            for f in flights or ROTORPY_DEFAULT:
+            named = flights or (list(side[controller]) if missed_only else ROTORPY_DEFAULT)  # --missed: every cell
+            for f in named:
                 if missed_only and not side[controller].get(f, {}).get("missed_steps"):
                     continue
                 for attempt in range(1, ATTEMPTS + 1):

@@ -209,6 +209,15 @@ def _get(get, rows: dict, c: str):
         return None
 
 
+def _runs(rows: dict, data: dict) -> list[dict]:
+    """When an airframe's cells in our simulator were flown: its run (or the file's), the flights
+    added later, the generalist's export and its flights added later."""
+    runs = [rows.get("run", data), *rows.get("flights_run", {}).values()]
+    if "generalist_export" in rows:
+        runs.append(rows["generalist_export"]["run"])
+    return runs + list(rows.get("generalist_flights_run", {}).values())
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("json", type=Path)
@@ -227,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         plot(data, args.plot)
         return 0
     print(tables[args.table](data))
-    runs = [rows.get("run", data) for rows in data["airframes"].values()]
+    runs = [run for rows in data["airframes"].values() for run in _runs(rows, data)]
     if args.table.startswith("rotorpy"):
         sides = [rows.get("rotorpy", {}) for rows in data["airframes"].values()]
         runs = [r for side in sides for k, r in side.items() if k.startswith("run")]

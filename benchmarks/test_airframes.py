@@ -65,3 +65,41 @@ def test_one_airframe_from_its_file_in_both_simulators_for_both_controllers(tmp_
     heavy, nominal = raptor["mass+30%"]["mean_error_last_2s_m"], raptor["hover"]["mean_error_last_2s_m"]
     assert "failed" not in raptor["mass+30%"] and heavy != nominal  # the same flight on another plant
     assert "| x500 | generalist |" in r.holding(data) and "| x500 | generalist |" in r.rotorpy(data)
+
+
+def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatch):
+    """The table is built by three subcommands into one JSON: `run` again (whole, or one flight)
+    keeps the generalist's and RotorPy's rows and the generalist exported beside the policy, and
+    `generalist --flight` adds its flights to the earlier ones. Training and flying are stood in
+    for: this is the JSON's and the folder's bookkeeping, which the smoke test above flies."""
+    out, policies = tmp_path / "a.json", tmp_path / "policies"
+
+    def train(vehicle, folder, extra):
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "policy.onnx").write_text("trained")
+        return {k: 1.0 for k in ("train_s", "export_s", "file_to_policy_s", *airframes.EVAL_KEYS)}
+
+    def fly(policy, vehicle, flight, tmp, episodes=airframes.EPISODES):
+        return {"success_rate": 1.0, "flight": " ".join(flight)}
+
+    monkeypatch.setattr(airframes, "train", train)
+    monkeypatch.setattr(airframes, "fly", fly)
+    monkeypatch.setattr(airframes, "generalist_policy", lambda p, v, folder: {"command": "x", "file_to_policy_s": 1})
+    airframes.run(out, ["x500"], episodes=1, policies=policies)
+    (policies / "x500" / "generalist.onnx").write_text("exported")
+    run_dir = tmp_path / "gen"
+    run_dir.mkdir()
+    airframes.run_generalist(out, ["x500"], run_dir / "policy.pt", policies, 1)
+    data = json.loads(out.read_text())
+    data["airframes"]["x500"]["rotorpy"] = {"ours": {"hover": {"success": True}}}
+    out.write_text(json.dumps(data))
+
+    airframes.run(out, ["x500"], episodes=1, merge=True, policies=policies)  # the whole airframe again
+    rows = json.loads(out.read_text())["airframes"]["x500"]
+    assert set(rows["generalist"]) == set(airframes.FLIGHTS) and "generalist_export" in rows
+    assert rows["rotorpy"] == {"ours": {"hover": {"success": True}}}
+    assert (policies / "x500" / "generalist.onnx").read_text() == "exported"  # retraining kept it
+
+    airframes.run_generalist(out, ["x500"], run_dir / "policy.pt", policies, 1, {"wind": airframes.FLIGHTS["wind"]})
+    rows = json.loads(out.read_text())["airframes"]["x500"]
+    assert set(rows["generalist"]) == set(airframes.FLIGHTS) and set(rows["generalist_flights_run"]) == {"wind"}

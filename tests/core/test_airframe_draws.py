@@ -2,8 +2,8 @@
 motor map's hover command that of each drone's drawn file, the true plant off that file by the
 preset's scales, the set's airframes inside the ranges, and a resumed run keeping the commands."""
 
-import glob
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -49,7 +49,9 @@ def test_the_set_lies_inside_the_ranges():
     r = AIRFRAMES
     d = draw_airframes(np.random.default_rng(0), 100_000)
     low, high = np.percentile(authority(d["mass"], d["arm"], d["ixx"]), [1, 99])
-    for path in sorted(glob.glob("benchmarks/airframes/*.toml")):
+    files = sorted((Path(__file__).resolve().parents[2] / "benchmarks" / "airframes").glob("*.toml"))
+    assert len(files) >= 8  # the set, not an empty loop
+    for path in files:
         v = load_vehicle_file(path)
         assert r.mass[0] <= v.mass <= r.mass[1], path
         assert low <= authority(v.mass, v.arm, v.ixx) <= high, path
@@ -143,3 +145,15 @@ def test_a_generalist_run_stops_and_resumes(tmp_path):
     assert saved.shape == (8,) and float(saved.min()) != float(saved.max())  # eight drawn airframes
     assert main([*flags, "--total-steps", "256", "--out", str(run), "--resume"]) == 0
     assert load_checkpoint(run / "checkpoint.pt")["global_step"] == 256
+
+
+def test_a_generalist_is_not_trained_on_a_vehicle_file(tmp_path, capsys):
+    """--vehicle with --randomize airframes: the file's rotor aerodynamics and lowest rotor speed
+    would go to every drawn airframe; refused in one line before anything runs."""
+    from quadpilot.train.cli import main
+
+    flags = ["--task", "hover", "--randomize", "airframes", "--out", str(tmp_path / "run")]
+    assert main([*flags, "--vehicle", str(Path(__file__).resolve().parents[2] / "benchmarks/airframes/x500.toml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "quad-export --vehicle FILE" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "run").exists()

@@ -4,16 +4,19 @@ same corner with the same spin), the file's hover command in the graph, the file
 and one-line refusals for a one-airframe policy, a layout it cannot drive and a bad flag."""
 
 import json
+import math
+import shutil
 
 import numpy as np
 import onnx
 import pytest
+import torch
 
 from quadpilot.core.dynamics import action_to_command
 from quadpilot.core.params import QUAD_X_UNIT, get_preset, unit_layout
 from quadpilot.core.vehicle_file import load_vehicle_file
 from quadpilot.export.cli import main
-from quadpilot.export.retarget import RetargetError, rotor_permutation
+from quadpilot.export.retarget import RetargetError, _head_names, rotor_permutation
 from quadpilot.runtime.backends import load_policy as load_runtime_policy
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
@@ -30,21 +33,44 @@ def test_rotor_permutation_matches_corners_and_spins():
     # a frame stretched out of square keeps each rotor in its corner
     assert rotor_permutation(QUAD_X_UNIT, unit_layout(load_vehicle_file(ASYMMETRIC))) == (0, 1, 2, 3)
     flipped = tuple((x, y, -s) for x, y, s in QUAD_X_UNIT)  # every rotor spinning the other way
-    with pytest.raises(RetargetError, match="spins the same way"):
+    with pytest.raises(RetargetError, match="spins the other way"):
         rotor_permutation(QUAD_X_UNIT, flipped)
     with pytest.raises(RetargetError, match="6 rotors"):
         rotor_permutation(QUAD_X_UNIT, QUAD_X_UNIT + QUAD_X_UNIT[:2])
 
 
+@pytest.mark.parametrize("turn_deg", [45.0, -45.0, 31.0])
+def test_a_plus_frame_or_a_turned_one_is_refused(turn_deg):
+    """A rotor 45° off the diagonals (a "+" frame) is as near two corners as one: refused, not
+    matched to either; so is one past the tolerance."""
+    c, s = math.cos(math.radians(turn_deg)), math.sin(math.radians(turn_deg))
+    turned = tuple((c * x - s * y, s * x + c * y, spin) for x, y, spin in QUAD_X_UNIT)
+    with pytest.raises(RetargetError, match="not within 30° of a corner"):
+        rotor_permutation(QUAD_X_UNIT, turned)
+    c, s = math.cos(math.radians(29.0)), math.sin(math.radians(29.0))  # still in its corner
+    assert rotor_permutation(QUAD_X_UNIT, tuple((c * x - s * y, s * x + c * y, sp) for x, y, sp in QUAD_X_UNIT)) == (
+        0,
+        1,
+        2,
+        3,
+    )
+
+
 @pytest.fixture(scope="module")
 def generalists(tmp_path_factory):
-    """Untrained generalists (head gain 1, so that commands differ per rotor): LSTM and MLP."""
+    """Untrained generalists (head gain 1 and biases drawn, so that commands differ per rotor and a
+    permutation that forgets the biases shows): LSTM and MLP."""
     d = tmp_path_factory.mktemp("generalist")
     env = make_config("hover", randomization="airframes")
-    return {
-        arch: save_untrained_policy(d / f"{arch}.pt", PPOConfig(arch=arch, lstm_hidden=16), env)
-        for arch in ("lstm", "mlp")
-    }
+    out = {}
+    for arch in ("lstm", "mlp"):
+        path = save_untrained_policy(d / f"{arch}.pt", PPOConfig(arch=arch, lstm_hidden=16), env)
+        data = torch.load(path, weights_only=True)
+        bias = _head_names(data)[1]
+        data["model"][bias] = torch.linspace(-0.4, 0.5, len(data["model"][bias]))
+        torch.save(data, path)
+        out[arch] = path
+    return out
 
 
 @pytest.mark.parametrize("arch", ["lstm", "mlp"])
@@ -91,3 +117,34 @@ def test_the_shipped_presets_are_retargeted_by_name(generalists, tmp_path, capsy
     assert main([str(generalists["mlp"]), "-o", str(out), "--vehicle", "crazyflie", "--parity-samples", "200"]) == 0
     meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
     assert json.loads(meta["quadpilot.vehicle"])["mass"] == get_preset("crazyflie").mass
+
+
+def test_output_names_never_overwrite_the_checkpoint_or_another_policy(generalists, tmp_path, capsys, monkeypatch):
+    ckpt = tmp_path / "policy.pt"
+    shutil.copy(generalists["mlp"], ckpt)
+    # no -o: <checkpoint>_<vehicle>.onnx and .pt beside the checkpoint
+    assert main([str(ckpt), "--vehicle", "crazyflie", "--parity-samples", "200"]) == 0
+    assert (tmp_path / "policy_crazyflie.onnx").is_file() and (tmp_path / "policy_crazyflie.pt").is_file()
+    # exporting again replaces the earlier retargeted file
+    assert main([str(ckpt), "--vehicle", "crazyflie", "--parity-samples", "200"]) == 0
+    capsys.readouterr()
+    # -o X.pt: the ONNX file would be written over the retargeted policy
+    assert main([str(ckpt), "-o", str(tmp_path / "x.pt"), "--vehicle", "crazyflie"]) == 2
+    assert "name a .onnx file" in capsys.readouterr().err
+    # a file that is not a retargeted policy is not overwritten
+    other = tmp_path / "other.pt"
+    shutil.copy(ckpt, other)
+    before = other.read_bytes()
+    assert main([str(ckpt), "-o", str(tmp_path / "other.onnx"), "--vehicle", "crazyflie"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "is not a retargeted policy" in err and len(err.splitlines()) == 1
+    assert other.read_bytes() == before
+    # an export that fails after the retarget leaves no retargeted file that no ONNX file names
+
+    def fail(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("quadpilot.export.onnx_export.export_onnx", fail)
+    assert main([str(ckpt), "-o", str(tmp_path / "full.onnx"), "--vehicle", "crazyflie"]) == 1
+    assert "No space left" in capsys.readouterr().err
+    assert not (tmp_path / "full.pt").exists() and not (tmp_path / "full.onnx").exists()

@@ -105,8 +105,11 @@ def test_evaluation_on_the_nominal_cell_equals_the_plain_evaluation():
     assert heavy["mean_error_last_window_m"] > a["mean_error_last_window_m"] + 0.02  # sags without integral action
 
 
-def test_resumed_randomised_training_continues_bit_for_bit(tmp_path):
-    env_cfg = make_config("hover", episode_steps=24, randomization="pushes")
+@pytest.mark.parametrize("name", ["pushes", "airframes"])
+def test_resumed_randomised_training_continues_bit_for_bit(tmp_path, name):
+    """Also for drawn airframes, whose motor maps use each drone's drawn hover command: a resumed run
+    that lost them would fly the nominal one and part from the straight run."""
+    env_cfg = make_config("hover", episode_steps=24, randomization=name)
     straight = PPO(TINY, env_cfg)
     for _ in range(3):
         straight.iterate()
@@ -115,7 +118,7 @@ def test_resumed_randomised_training_continues_bit_for_bit(tmp_path):
     first.iterate()
     save_for_resume(tmp_path, first)
     ckpt, _, _ = load_for_resume(tmp_path)
-    assert ckpt["env_config"]["randomization"]["name"] == "pushes"
+    assert ckpt["env_config"]["randomization"]["name"] == name
     resumed = ppo_from_checkpoint(ckpt)
     resumed.iterate()
     for k, v in straight.model.state_dict().items():
@@ -123,6 +126,7 @@ def test_resumed_randomised_training_continues_bit_for_bit(tmp_path):
     np.testing.assert_array_equal(straight.env.batch.state, resumed.env.batch.state)
     np.testing.assert_array_equal(straight.env.batch.params.mass, resumed.env.batch.params.mass)
     np.testing.assert_array_equal(straight.env.batch.randomizer.wind, resumed.env.batch.randomizer.wind)
+    np.testing.assert_array_equal(straight.env.batch.randomizer.u_hover, resumed.env.batch.randomizer.u_hover)
 
 
 CLI_TINY = ["--num-envs", "64", "--rollout-steps", "16", "--threads", "1", "--eval-episodes", "4", "--eval-every", "0"]

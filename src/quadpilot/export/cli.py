@@ -53,10 +53,21 @@ def _check_args(args) -> Path:
     ckpt = args.checkpoint
     if (why := input_path_problem(ckpt, "policy.pt (or checkpoint.pt) written by quad-train")) is not None:
         raise _BadFlag(why)
+    if args.vehicle is not None:
+        if args.format != "onnx":
+            raise _BadFlag(f"--vehicle needs --format onnx (then export the .pt it writes with --format {args.format})")
+        from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError, resolve_vehicle
+
+        try:
+            args.vehicle = resolve_vehicle(args.vehicle)
+        except (UnknownVehicleError, VehicleFileError) as e:
+            raise _BadFlag(f"--vehicle: {e}") from None
     if args.format == "c":
         out = args.output or ckpt.with_name(f"{ckpt.stem}_c")
     elif args.format == "px4-raptor":
         out = args.output or ckpt.parent
+    elif args.vehicle is not None:  # <name>_<vehicle>.onnx and .pt beside the checkpoint, not over it
+        out = args.output or ckpt.with_name(f"{ckpt.stem}_{_file_stem(args.vehicle.name)}.onnx")
     else:
         out = args.output or ckpt.with_suffix(".onnx")
     try:
@@ -68,18 +79,38 @@ def _check_args(args) -> Path:
     if out.resolve() == ckpt.resolve():
         raise _BadFlag(f"--output {out} is the checkpoint itself; name another file")
     if args.vehicle is not None:
-        if args.format != "onnx":
-            raise _BadFlag(f"--vehicle needs --format onnx (then export the .pt it writes with --format {args.format})")
-        if out.with_suffix(".pt").resolve() == ckpt.resolve():
-            written = out.with_suffix(".pt")
-            raise _BadFlag(f"--vehicle writes {written}, which is the checkpoint itself; name another --output")
-        from quadpilot.core.vehicle_file import UnknownVehicleError, VehicleFileError, resolve_vehicle
-
-        try:
-            args.vehicle = resolve_vehicle(args.vehicle)
-        except (UnknownVehicleError, VehicleFileError) as e:
-            raise _BadFlag(f"--vehicle: {e}") from None
+        _check_retarget_output(out, ckpt)
     return out
+
+
+def _file_stem(name: str) -> str:
+    """A vehicle's name as part of a file name: letters, digits, '-' and '_' only."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name) or "vehicle"
+
+
+def _check_retarget_output(out: Path, ckpt: Path) -> None:
+    """--vehicle writes the retargeted policy as <output>.pt: never the ONNX file itself, never the
+    checkpoint, never a file that is not an earlier retargeted policy."""
+    pt = out.with_suffix(".pt")
+    if out.suffix == ".pt":
+        raise _BadFlag(f"--output {out}: with --vehicle the retargeted policy is written as {pt}; name a .onnx file")
+    if pt.resolve() == ckpt.resolve():
+        raise _BadFlag(f"--vehicle writes {pt}, which is the checkpoint itself; name another --output")
+    if pt.exists() and not _is_retargeted(pt):
+        raise _BadFlag(
+            f"--vehicle writes {pt}, and {pt} exists and is not a retargeted policy; name another --output or move it"
+        )
+
+
+def _is_retargeted(path: Path) -> bool:
+    """Whether `path` is a policy an earlier quad-export --vehicle wrote (then it may be replaced)."""
+    from quadpilot.train.runs.checkpoint import CheckpointError
+    from quadpilot.train.runs.checkpoint_read import load_checkpoint
+
+    try:
+        return "retargeted" in load_checkpoint(path).get("extra", {})
+    except (CheckpointError, OSError):
+        return False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -121,8 +152,8 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME|FILE.toml",
         help="Fly a generalist policy (quad-train --randomize airframes) on this airframe, retrained in nothing: "
         "its hover command goes into the graph, its rotor order into the action head "
-        "(quadpilot.export.retarget); the retargeted policy is written beside the ONNX file as <name>.pt. "
-        "Default: the policy's own vehicle",
+        "(quadpilot.export.retarget); the retargeted policy is written beside the ONNX file as <name>.pt "
+        "(default output: <checkpoint>_<vehicle>.onnx). Default: the policy's own vehicle",
     )
     p.add_argument(
         "--parity-samples",
@@ -152,11 +183,12 @@ def main(argv: list[str] | None = None) -> int:
         except CrossToolError as e:
             print(f"quad-export: error: --target {args.target}: {e}", file=sys.stderr)
             return 1
+    written = None
     try:
         if args.format == "px4-raptor":
             return _main_px4_raptor(args, out)
         if args.vehicle is not None:
-            args.checkpoint = _retargeted(args, out)
+            args.checkpoint = written = _retargeted(args, out)
         from quadpilot.train.raptor_distill import CONTRACT, is_student_checkpoint
 
         if is_student_checkpoint(args.checkpoint):
@@ -168,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         return _main_c(args, out) if args.format == "c" else _main_onnx(args, out)
     except Exception as e:  # one line, exit 1, for what the checks let through (see _failure)
+        if written is not None and not out.exists():  # no ONNX file names the retargeted policy
+            written.unlink(missing_ok=True)
         message = _failure(e)
         if message is None:
             raise

@@ -28,27 +28,38 @@ class RetargetError(ValueError):
     """The policy or the vehicle does not allow it: one line that says which and why."""
 
 
+CORNER_TOLERANCE_DEG = 30.0
+"""How far from the training layout's rotor a vehicle's rotor may sit and still be driven by its
+output. A quad-X rotor sits on a diagonal, 45° from the nearest axis; a rotor within 30° of it is in
+that corner by a clear margin (the asymmetric frame's are 13° to 18° off). A "+" frame's rotors sit
+on the axes, 45° from two diagonals at once: that is a turned mixer, refused, not guessed."""
+
+
 def rotor_permutation(trained: tuple, target: tuple) -> tuple[int, ...]:
     """For each rotor j of `target` (unit layout rows (x, y, spin), body FLU), the rotor i of
-    `trained` that sits in the same direction from the centre (within 60°) and spins the same way.
-    RetargetError when that is not one-to-one."""
+    `trained` that sits in the same direction from the centre (within CORNER_TOLERANCE_DEG) and
+    spins the same way. RetargetError when there is none or the match is not one-to-one."""
     if len(trained) != len(target):
         raise RetargetError(f"the vehicle has {len(target)} rotors; the policy drives {len(trained)}")
+    tolerance = math.radians(CORNER_TOLERANCE_DEG)
     order = []
     for j, (x, y, spin) in enumerate(target):
         bearing = math.atan2(y, x)
-        best = None
-        for i, (xi, yi, si) in enumerate(trained):
-            gap = abs(math.remainder(math.atan2(yi, xi) - bearing, math.tau))
-            if si == spin and gap < math.radians(60.0) and (best is None or gap < best[0]):
-                best = (gap, i)
-        if best is None:
-            side = f"at {math.degrees(bearing):.0f}° (FLU, from the nose, counter-clockwise)"
+        gaps = [abs(math.remainder(math.atan2(yi, xi) - bearing, math.tau)) for xi, yi, _ in trained]
+        near = [i for i, gap in enumerate(gaps) if gap <= tolerance]
+        side = f"rotor {j + 1} at {math.degrees(bearing):.0f}° (FLU, from the nose, counter-clockwise)"
+        if not near:
             raise RetargetError(
-                f"the vehicle's rotor {j + 1} {side}, spin {'+' if spin > 0 else '-'}, has no rotor of the "
-                "policy's quad-X layout within 60° that spins the same way"
+                f"the vehicle's {side} is not within {CORNER_TOLERANCE_DEG:.0f}° of a corner of the policy's quad-X "
+                "layout (a '+' frame or a turned one); the policy drives one rotor per diagonal"
             )
-        order.append(best[1])
+        i = min(near, key=gaps.__getitem__)
+        if trained[i][2] != spin:
+            raise RetargetError(
+                f"the vehicle's {side} spins {'+' if spin > 0 else '-'}; the policy's rotor in that corner "
+                "does not: it spins the other way"
+            )
+        order.append(i)
     if sorted(order) != list(range(len(trained))):
         raise RetargetError(f"the vehicle's rotors map onto the policy's as {order}, not one to one")
     return tuple(order)

@@ -327,6 +327,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.snapshot_every and args.algo == "sb3":
             raise UsageError("--snapshot-every is for our PPO and SAC; --algo sb3 writes no snapshots")
         resolve_vehicle(args)
+        if args.vehicle is not None and args.randomize == "airframes":  # its rotor aerodynamics would go to every draw
+            raise UsageError(
+                "--vehicle with --randomize airframes: the training draws every episode's airframe itself; "
+                "train without --vehicle, then export for a vehicle with quad-export --vehicle FILE"
+            )
         if args.teacher is not None and args.contract is None:
             raise UsageError("--teacher is for --contract px4-raptor (the policy distilled from it)")
         if args.contract is not None:
