@@ -30,7 +30,7 @@ simulator with each vehicle file's dynamics, `ROTORPY_FLIGHTS`, measured from Ro
 The generalist (`generalist OUT --policy generalist.pt --policies DIR`, after `run`): one recurrent
 policy trained once over drawn airframes (`GENERALIST_TRAIN`: quad-train --arch lstm --randomize
 airframes; `core.randomization.AIRFRAMES`), exported for each airframe with `quad-export --vehicle
-FILE` (its file's hover command and rotor order, nothing retrained; `export.retarget`) and flown on
+FILE` (its file's hover command and rotor order, nothing retrained; `train.retarget`) and flown on
 the same flights in both simulators, under each airframe's "generalist" and "rotorpy"/"generalist".
 
 Not here yet: RotorPy's side of the wind, impulse and wrong-file flights.
@@ -326,6 +326,31 @@ def generalist_policy(policy: Path, vehicle: str, folder: Path) -> dict:
     return {"command": f"quad-export {policy.name} --vehicle FILE", "file_to_policy_s": time.perf_counter() - t0}
 
 
+def training_record(run_dir: Path) -> dict:
+    """A training run's command, steps, time and evaluation (config.json, metrics.csv, eval.json);
+    for a run started from another policy (quad-train --init-from), that run's record too, when its
+    folder is beside the policy it names."""
+    from quadpilot.train.runs.runlog import read_metrics
+
+    def read(name: str) -> dict:
+        return json.loads((run_dir / name).read_text()) if (run_dir / name).is_file() else {}
+
+    ev, config = read("eval.json"), read("config.json")
+    m = read_metrics(run_dir / "metrics.csv") if (run_dir / "metrics.csv").is_file() else {}
+    rows = len(m.get("update", ()))
+    out = {
+        "command": config.get("command", "quad-train " + " ".join(GENERALIST_TRAIN)),
+        "steps": int(m["global_step"][-1]) if rows else 0,
+        "train_s": float(m["time_s"][-1]) if rows else math.nan,
+        "eval_success_rate": ev.get("success_rate"),
+        "eval_mean_final_distance_m": ev.get("mean_final_distance_m"),
+    }
+    if "init_from" in config:
+        source = Path(config["init_from"]["policy"]).parent
+        out["init_from"] = {**config["init_from"], **(training_record(source) if source != run_dir else {})}
+    return out
+
+
 def run_generalist(
     out: Path, airframes: list[str], policy: Path, policies: Path, episodes: int, flights: dict | None = None
 ) -> dict:
@@ -334,19 +359,7 @@ def run_generalist(
     data = json.loads(out.read_text())
     if data.get("episodes") != episodes:
         raise SystemExit(f"airframes: {out} was flown with {data.get('episodes')} episodes; give --episodes to match")
-    run_dir = policy.parent
-    ev = json.loads((run_dir / "eval.json").read_text()) if (run_dir / "eval.json").is_file() else {}
-    from quadpilot.train.runs.runlog import read_metrics
-
-    m = read_metrics(run_dir / "metrics.csv") if (run_dir / "metrics.csv").is_file() else {}
-    rows = len(m.get("update", ()))
-    data["generalist_training"] = {
-        "command": "quad-train " + " ".join(GENERALIST_TRAIN),
-        "steps": int(m["global_step"][-1]) if rows else 0,
-        "train_s": float(m["time_s"][-1]) if rows else math.nan,
-        "eval_success_rate": ev.get("success_rate"),
-        "eval_mean_final_distance_m": ev.get("mean_final_distance_m"),
-    }
+    data["generalist_training"] = training_record(policy.parent)
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     with tempfile.TemporaryDirectory() as tmp:
         for name in airframes:

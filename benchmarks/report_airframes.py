@@ -149,12 +149,32 @@ def training(data: dict) -> str:
             )
     g = data.get("generalist_training")
     if g:
-        lines.append(
-            f"\nThe generalist, trained once: `{g['command']}`, {g['steps']:,} steps in {g['train_s']:.0f} s; its "
-            f"evaluation over drawn airframes: {100 * g['eval_success_rate']:.0f} % · "
-            f"{_cm(g['eval_mean_final_distance_m'])}."
-        )
+        first = g.get("init_from")
+        if first and "command" in first:  # trained, then trained on from that policy
+            lines.append(
+                f"\nThe generalist, trained once: `{_command(first['command'])}`, {first['steps']:,} steps in "
+                f"{first['train_s']:.0f} s, then on from that policy: `{_command(g['command'])}`, "
+                f"{g['steps']:,} steps in {g['train_s']:.0f} s; its evaluation over drawn airframes: "
+                f"{100 * g['eval_success_rate']:.0f} % · {_cm(g['eval_mean_final_distance_m'])}."
+            )
+        else:
+            lines.append(
+                f"\nThe generalist, trained once: `{_command(g['command'])}`, {g['steps']:,} steps in "
+                f"{g['train_s']:.0f} s; its evaluation over drawn airframes: {100 * g['eval_success_rate']:.0f} % · "
+                f"{_cm(g['eval_mean_final_distance_m'])}."
+            )
     return "\n".join(lines)
+
+
+def _command(command: str) -> str:
+    """A recorded quad-train command without the machine's own paths: --out and the file named by
+    --init-from shown by their last folder."""
+    words = command.split()
+    for i, w in enumerate(words[:-1]):
+        if w in ("--out", "--init-from"):
+            path = Path(words[i + 1])
+            words[i + 1] = f"runs/{path.name}" if w == "--out" else f"runs/{path.parent.name}/{path.name}"
+    return " ".join(words)
 
 
 def plot(data: dict, path: Path) -> None:

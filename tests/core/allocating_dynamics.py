@@ -70,11 +70,13 @@ def _external(force, torque, params, dtype) -> tuple:
 
 def _substep(s, w, u, d, h: float, ext: tuple | None = None, air: list | None = None):
     x, y, z, vx, vy, vz, phi, th, psi, p, q, r = s
-    if d.lag:
-        w = [ui + d.decay * (wi - ui) for wi, ui in zip(w, u, strict=True)]
+    if d.lag:  # F = k_f·(mean ω² over the substep), N; ω at its end
+        gap = [wi - ui for wi, ui in zip(w, u, strict=True)]
+        f = [d.f_max * ui * ui + d.f_max * ((d.lag_b * di + d.lag_2a * ui) * di) for di, ui in zip(gap, u, strict=True)]
+        w = [ui + d.decay * di for di, ui in zip(gap, u, strict=True)]
     else:
         w = list(u)
-    f = [d.f_max * wi * wi for wi in w]  # F = k_f·ω², N
+        f = [d.f_max * wi * wi for wi in w]  # F = k_f·ω², N
     thrust, tx, ty, tz = d.wrench(f)  # N, and N·m in body FLU (module docstring)
     if ext is not None and ext[1] is not None:  # external moment, body FLU
         tx, ty, tz = tx + ext[1][0], ty + ext[1][1], tz + ext[1][2]

@@ -16,10 +16,10 @@ from quadpilot.core.dynamics import action_to_command
 from quadpilot.core.params import QUAD_X_UNIT, get_preset, unit_layout
 from quadpilot.core.vehicle_file import load_vehicle_file
 from quadpilot.export.cli import main
-from quadpilot.export.retarget import RetargetError, _head_names, rotor_permutation
 from quadpilot.runtime.backends import load_policy as load_runtime_policy
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
+from quadpilot.train.retarget import RetargetError, _head_names, rotor_permutation
 from quadpilot.train.runs.checkpoint import load_policy, save_untrained_policy
 
 ROTORPY_ORDER = "benchmarks/airframes/rotorpy_hummingbird.toml"  # RotorPy numbers from front-left

@@ -149,20 +149,32 @@ def test_a_tilted_touchdown_with_horizontal_speed_is_levelled_and_stopped_by_fri
 
 def test_the_ground_holds_the_vehicle_until_its_thrust_exceeds_its_weight_then_it_lifts_off():
     """Rotors spinning up from rest (motor lag 50 ms) at full command: on the plane, reading +g, while
-    the thrust is below the weight; off it from the first step the thrust exceeds it."""
-    vehicle = SimConfig(motor_tau_s=0.05).vehicle_params
+    the thrust is below the weight; off it from the first step the thrust exceeds it. The thrust of a
+    step is the mean of ω² over it, ω = 1 − e^(−t/τ): ∫ω² dt over the step, over its length."""
+    tau = 0.05
+    vehicle = SimConfig(motor_tau_s=tau).vehicle_params
     p = plant(vehicle=vehicle)
     p.reset(landed_state())
+    dt = p.dt
+
+    def mean_square(t0: float) -> float:  # of ω = 1 − e^(−t/τ) over [t0, t0 + dt]
+        def integral(t):
+            return t + 2 * tau * math.exp(-t / tau) - tau / 2 * math.exp(-2 * t / tau)
+
+        return (integral(t0 + dt) - integral(t0)) / dt
+
     lifted = None
     for n in range(1, 101):
         p.step(np.ones(4))
-        above = p.rotor[0] > vehicle.hover_command  # thrust ∝ ω²: above hover speed, above the weight
+        above = mean_square((n - 1) * dt) > vehicle.hover_command**2  # thrust ∝ ω²: above the weight
         assert (p.state[2] > 0.0) == above and p.on_ground == (not above)
-        if not above:
-            np.testing.assert_allclose(p.specific_force_flu(), [0.0, 0.0, G], atol=1e-9)
+        if not above:  # held, reading +g; or, in the step the rotors pass the hover speed, their thrust
+            reading = max(G, p.thrust_n / vehicle.mass)  # (the ground pushes no more; lift-off next step)
+            np.testing.assert_allclose(p.specific_force_flu(), [0.0, 0.0, reading], atol=1e-9)
         elif lifted is None:
             lifted = n
-    assert lifted == 6  # ω = 1 − e^(−t/τ) passes the hover speed 0.677 at t = 0.0565 s
+    # ω passes the hover speed 0.677 at t = 0.0565 s, the mean of ω² passes its square within the 7th step
+    assert lifted == 7
     assert p.state[2] > 3.0 and np.all(np.isfinite(p.state))
 
 

@@ -36,7 +36,11 @@ rotor at rest jump to ω_min in one step).
 once, for a batch stepped every control period (the training environments); `step` copies its
 inputs to rows, runs it, and returns new arrays.
 
-Integration per (sub)step of length h: rotor lag exactly discretised; body rates by Euler's
+Integration per (sub)step of length h: rotor lag exactly discretised, and the rotors' thrust over
+the substep the mean of k_f·ω² along that exponential (RotorPy integrates the lag with the rest of
+the state, so its thrust follows the rotor speed within the step; the end's ω² held for the whole
+step would lead it by about half a step, which a high-gain policy on a slow motor turns into an
+oscillation in RotorPy that it does not have here); body rates by Euler's
 rotational equation with the gyroscopic term ω × (Iω), forward in time; Euler angles advanced with
 the mid-step rates (exact for a constant torque about one axis); position with the constant-
 acceleration formula p + h·v + h²/2·a (exact in free fall). Euler angles are singular at
@@ -192,6 +196,14 @@ class _Derived:
             # τ = 0 gives a decay of exactly 0, so ω = ω_cmd bit for bit, as for a lag-free batch
             # (the form ω + (1 − e^(−h/τ))·(ω_cmd − ω) rounds to one ulp away from ω_cmd).
             self.decay = c(np.where(tau > 0, np.exp(-h / np.where(tau > 0, tau, 1.0)), 0.0))
+            # the thrust over the substep: the mean of ω² along that exponential, not the end's ω²
+            # (module docstring). With d = ω − ω_cmd at the start, ω(t) = ω_cmd + d·e^(−t/τ) and
+            # mean ω² = ω_cmd² + 2·A·ω_cmd·d + B·d², A = τ/h·(1 − e^(−h/τ)), B = τ/2h·(1 − e^(−2h/τ));
+            # τ = 0: A = B = 0, the command's ω² at once
+            e = np.exp(-h / np.where(tau > 0, tau, 1.0))
+            over = np.where(tau > 0, tau / h, 0.0)
+            self.lag_2a = c(2.0 * over * (1.0 - e))
+            self.lag_b = c(0.5 * over * (1.0 - e * e))
         self.drag = bool(np.any(p.drag > 0))
         if self.drag:
             self.drag_over_m = c(p.drag / p.mass)
@@ -255,6 +267,7 @@ class Stepper:
         self.n, self.m, self.dtype = int(n), int(n_rotors), np.dtype(dtype)
         rows = lambda k: np.empty((k, self.n), self.dtype)  # noqa: E731
         self.f = rows(self.m)  # rotor thrusts F_i, N
+        self.fu = rows(self.m)  # scratch for the lagged rotors' mean ω²
         self.wrench = rows(4)  # thrust, τx, τy, τz
         self.gyro = rows(3)  # the gyroscopic terms, then the rate increments
         self.rates1 = rows(3)  # p, q, r at the end of the substep
@@ -353,13 +366,23 @@ class Stepper:
         mul, add, sub = np.multiply, np.add, np.subtract
         pos, vel, att, rates, psi, p, q, r = self._views(s)
         sphi, sth, spsi, cphi, cth, cpsi, pm, qm, rm, g0, g1, g2, t1, t2, t3, i0, i1, i2, z0, z1, z2 = self._rows
-        if d.lag:  # w = ui + decay·(wi − ui); else w = u, clipped into w by `step`
-            sub(w, u, w)
+        f = self.f
+        if d.lag:  # di = wi − ui; f = f_max·ui·ui + f_max·((B·di + 2A·ui)·di); w = ui + decay·di
+            sub(w, u, w)  # (a lag-free drone, A = B = 0, gets f_max·ui·ui bit for bit, as alone)
+            fu = self.fu
+            mul(k.lag_b, w, f)
+            mul(k.lag_2a, u, fu)
+            add(f, fu, f)
+            mul(f, w, f)
+            mul(k.f_max, f, f)
+            mul(k.f_max, u, fu)
+            mul(fu, u, fu)
+            add(fu, f, f)
             mul(k.decay, w, w)
             add(u, w, w)
-        f = self.f  # f = f_max·wi·wi
-        mul(k.f_max, w, f)
-        mul(f, w, f)
+        else:  # f = f_max·wi·wi; w = u, clipped into w by `step`
+            mul(k.f_max, w, f)
+            mul(f, w, f)
         k.wrench_into(self._f_rows, self._wr_rows, t1)  # thrust, tx, ty, tz = wrench(f)
         torque = self.wrench[1:4]
         if mom is not None:  # tx, ty, tz = tx + m_x, ...
@@ -465,6 +488,8 @@ class _StepperConstants:
         self.f_max = rows(d.f_max, m)
         self.u_min = d.u_min if np.isscalar(d.u_min) else rows(d.u_min[:, 0], m)
         self.decay = rows(d.decay, m) if d.lag else None
+        self.lag_2a = rows(d.lag_2a, m) if d.lag else None
+        self.lag_b = rows(d.lag_b, m) if d.lag else None
         self.drag_over_m = rows(d.drag_over_m, 3) if d.drag else None
         self.izz_iyy, self.ixx_izz, self.iyy_ixx = d.izz_iyy, d.ixx_izz, d.iyy_ixx
         self.inv_inertia = np.stack([d.inv_ixx, d.inv_iyy, d.inv_izz])

@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME|FILE.toml",
         help="Fly a generalist policy (quad-train --randomize airframes) on this airframe, retrained in nothing: "
         "its hover command goes into the graph, its rotor order into the action head "
-        "(quadpilot.export.retarget); the retargeted policy is written beside the ONNX file as <name>.pt "
+        "(quadpilot.train.retarget); the retargeted policy is written beside the ONNX file as <name>.pt "
         "(default output: <checkpoint>_<vehicle>.onnx). Default: the policy's own vehicle",
     )
     p.add_argument(
@@ -214,9 +214,8 @@ def _retargeted(args, out: Path) -> Path:
     import torch
 
     from quadpilot.console import atomic_write
+    from quadpilot.train.retarget import retarget_checkpoint
     from quadpilot.train.runs.checkpoint_read import load_checkpoint
-
-    from .retarget import retarget_checkpoint
 
     vehicle = args.vehicle  # a VehicleParams by now (_check_args)
     data = retarget_checkpoint(load_checkpoint(args.checkpoint), vehicle, str(args.checkpoint))
@@ -232,9 +231,8 @@ def _failure(e: Exception) -> str | None:
     from quadpilot.modelfile.model import ModelContractError
     from quadpilot.runtime.rltools_tar import PolicyTarError
     from quadpilot.train.raptor_distill import StudentCheckpointError
+    from quadpilot.train.retarget import RetargetError
     from quadpilot.train.runs.checkpoint import CheckpointError
-
-    from .retarget import RetargetError
 
     if isinstance(e, (CheckpointError, ModelContractError, StudentCheckpointError, PolicyTarError, RetargetError)):
         return str(e)

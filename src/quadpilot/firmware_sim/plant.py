@@ -165,6 +165,10 @@ class Plant:
         self.state, self.rotor = out
         if before[Z] >= GROUND_Z > self.state[Z]:  # the free step would cross the plane downwards
             self._touch_ground(before, self.state)
+            if resting_on_ground(before) and resting_on_ground(self.state):
+                # still standing: the ground's force now holds it under the rotors' thrust now, which
+                # a spinning-up rotor has raised above the step's mean (none once it passes the weight)
+                self._contact_acc = self._support()
         elif self.on_ground:
             self.on_ground, self.impact_speed, self._contact_acc = False, 0.0, None
         self._keep_in_domain(self.state)

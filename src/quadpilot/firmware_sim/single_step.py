@@ -101,6 +101,9 @@ class SingleStep:
         if self.lag:
             tau = np.asarray(p.motor_tau, dtype=np.float64)
             self.decay = one(np.where(tau > 0, np.exp(-h / np.where(tau > 0, tau, 1.0)), 0.0))
+            e = np.exp(-h / np.where(tau > 0, tau, 1.0))  # the mean of ω² over the step (core.dynamics._Derived)
+            over = np.where(tau > 0, tau / h, 0.0)
+            self.lag_2a, self.lag_b = one(2.0 * over * (1.0 - e)), one(0.5 * over * (1.0 - e * e))
         self.drag = bool(np.any(p.drag > 0))
         self.drag_over_m = one(p.drag / p.mass) if self.drag else 0.0
         # the quadratic body drag and the rotor aerodynamics need the air's velocity and a rotation
@@ -132,13 +135,15 @@ class SingleStep:
         x, y, z, vx, vy, vz, phi, th, psi, p, q, r = state.tolist()
         h = self.h
         # --- core.dynamics.Stepper's substep, operation for operation ---
+        f_max = self.f_max
         if self.lag:
-            decay = self.decay
-            w = [ui + decay * (wi - ui) for wi, ui in zip(rotor.tolist(), u, strict=True)]
+            decay, a2, b = self.decay, self.lag_2a, self.lag_b
+            gap = [wi - ui for wi, ui in zip(rotor.tolist(), u, strict=True)]
+            f = [f_max * ui * ui + f_max * ((b * di + a2 * ui) * di) for di, ui in zip(gap, u, strict=True)]
+            w = [ui + decay * di for di, ui in zip(gap, u, strict=True)]
         else:
             w = u
-        f_max = self.f_max
-        f = [f_max * wi * wi for wi in w]
+            f = [f_max * wi * wi for wi in w]
         thrust = f[0]
         for fi in f[1:]:
             thrust = thrust + fi

@@ -179,6 +179,14 @@ def build_parser() -> argparse.ArgumentParser:
         "Only --total-steps and --threads may differ from the original run.",
     )
     p.add_argument(
+        "--init-from",
+        metavar="POLICY.pt",
+        help="Start the network from this PPO policy (policy.pt or a checkpoint): its shape, weights (action head in "
+        "this vehicle's rotor order) and observation statistics; optimiser, schedule and seed are this run's "
+        "(quadpilot.train.runs.init_from). For fine-tuning a generalist (--randomize airframes) on one --vehicle. "
+        "Default: a fresh network",
+    )
+    p.add_argument(
         "--eval-episodes",
         type=int_at_least(0, upper["num_envs"]),  # evaluated as one batch of drones
         default=100,
@@ -332,6 +340,9 @@ def main(argv: list[str] | None = None) -> int:
                 "--vehicle with --randomize airframes: the training draws every episode's airframe itself; "
                 "train without --vehicle, then export for a vehicle with quad-export --vehicle FILE"
             )
+        if args.init_from is not None and (args.resume or args.contract is not None):
+            why = "a resumed run continues from its own checkpoint" if args.resume else "the contract distils its own"
+            raise UsageError(f"--init-from starts a fresh run of our PPO; {why}")
         if args.teacher is not None and args.contract is None:
             raise UsageError("--teacher is for --contract px4-raptor (the policy distilled from it)")
         if args.contract is not None:

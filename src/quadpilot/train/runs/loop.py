@@ -32,6 +32,7 @@ from quadpilot.console import UsageError
 
 from .. import options
 from ..algorithms import ALGORITHMS
+from . import init_from
 from .checkpoint import (
     POLICY,
     has_checkpoint,
@@ -301,6 +302,10 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
 
     _check_fresh_dir(out)
     preset = (args.preset or "fast") if algo.algo == "ppo" else None
+    source = None
+    if getattr(args, "init_from", None) is not None:  # a fine-tune: the file's network and weights
+        source = init_from.load_source(args.init_from, algo)
+        explicit = init_from.network_options(source, explicit, args.init_from)
     cfg = options.make_config(algo, explicit, preset)
     env_kw = options.env_kwargs(args)
     if args.task == "waypoint":
@@ -310,6 +315,7 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
         agent = algo(cfg, env_cfg)  # before any file is written: a failure here leaves no half-made run
     except ValueError as e:
         raise UsageError(f"{algo.algo.upper()} configuration: {e}") from None
+    started_from = init_from.start_from(agent, source, args.init_from) if source is not None else None
     _claim_fresh_dir(out)
     cur = _curriculum(args.task, agent)
     values = {
@@ -330,7 +336,8 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
         "versions": {"torch": torch.__version__, "numpy": np.__version__, "python": sys.version.split()[0]},
         "machine": machine(),
     }
-    write_json(out / "config.json", {k: values[k] for k in algo.run_keys})
+    kept = {k: values[k] for k in algo.run_keys}
+    write_json(out / "config.json", kept if started_from is None else {**kept, "init_from": started_from})
     MetricsLog(out / "metrics.csv", algo.columns).close()  # the header, so the file exists from the start
     return Run(agent, cur, preset, 0.0, None)
 

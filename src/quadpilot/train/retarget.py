@@ -10,7 +10,9 @@ action head into the file's rotor order: output i of the head drives the trainin
 and the file may number its rotors otherwise (RotorPy's airframes start at front-left).
 
 `quad-export --vehicle FILE` calls it and writes the result beside the ONNX file (`<name>.pt`), so
-the source checksum the ONNX metadata records belongs to a file that exists.
+the source checksum the ONNX metadata records belongs to a file that exists. `quad-train --init-from`
+starts a run from such a policy's weights in its vehicle's rotor order (`permuted_model`,
+`runs.init_from`).
 """
 
 from __future__ import annotations
@@ -76,6 +78,17 @@ def _head_names(ckpt: dict) -> tuple[str, str]:
     return f"{layers[-1]}.weight", f"{layers[-1]}.bias"
 
 
+def permuted_model(ckpt: dict, order: tuple[int, ...]) -> dict:
+    """The checkpoint's network weights with the action head's rows (and the action's spread) put
+    into `order` (`rotor_permutation`): output j of the result is output order[j] of the original."""
+    model = dict(ckpt["model"])
+    index = torch.tensor(order)
+    for name in (*_head_names(ckpt), "log_std"):  # the action's rows (and its spread), per rotor
+        if name in model:
+            model[name] = model[name].index_select(0, index).clone()
+    return model
+
+
 def retarget_checkpoint(ckpt: dict, vehicle: VehicleParams, source: str = "policy") -> dict:
     """A copy of the checkpoint `ckpt` (a loaded policy.pt) that flies `vehicle`: its environment is
     `vehicle` without randomisation, its action head permuted into the vehicle's rotor order."""
@@ -91,11 +104,7 @@ def retarget_checkpoint(ckpt: dict, vehicle: VehicleParams, source: str = "polic
         raise RetargetError(f"{source}: only PPO policies are retargeted, this one is {ckpt.get('algo')!r}")
     order = rotor_permutation(unit_layout(env.params), unit_layout(vehicle))
     out = copy.copy(ckpt)
-    out["model"] = dict(ckpt["model"])
-    index = torch.tensor(order)
-    for name in (*_head_names(ckpt), "log_std"):  # the action's rows (and its spread), per rotor
-        if name in ckpt["model"]:
-            out["model"][name] = ckpt["model"][name].index_select(0, index).clone()
+    out["model"] = permuted_model(ckpt, order)
     out["env_config"] = dataclasses.replace(env, vehicle=vehicle, randomization=None).to_json()
     out["extra"] = {
         **dict(ckpt.get("extra", {})),
