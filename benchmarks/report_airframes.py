@@ -106,6 +106,41 @@ def rotorpy(data: dict) -> str:
     return "\n".join(lines)
 
 
+BEFORE_LAG_FIX = "airframes_before_lag_fix.json"
+"""Beside the JSON: the RotorPy flights (and the hover in our simulator) before the motor lag's
+thrust became the step's mean of k_f·ω² (see docs/raptor.md)."""
+
+
+def lag_fix(data: dict, before: dict) -> str:
+    """RotorPy, our two policies on each vehicle file: before the correction → after it."""
+    lines = [
+        "| airframe | controller | hover to 0.95 m | step overshoot | figure8 1 m/s | figure8 2 m/s |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+
+    def pair(f, r0, r1, key, fmt):
+        values = []
+        for r in (r0, r1):
+            v = (r or {}).get(f, {}).get(key)
+            values.append("–" if v is None else fmt(v))
+        return " → ".join(values)
+
+    for name, rows in data["airframes"].items():
+        side = rows.get("rotorpy") or {}
+        old = before["airframes"].get(name, {}).get("rotorpy") or {}
+        for c in ("ours", "generalist"):
+            if c not in side:
+                continue
+            r0, r1 = old.get(c), side[c]
+            cells = [
+                pair("hover", r0, r1, "mean_error_last_2s_m", _cm),
+                pair("step", r0, r1, "overshoot_pct", lambda v: f"{v:.0f} %"),
+                *(pair(f, r0, r1, "tracking_rms_m", _cm) for f in EIGHTS[:2]),
+            ]
+            lines.append(f"| {name} | {c} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 WRONG_FILE = ("mass+30%", "mass-30%", "thrust+20%", "thrust-20%")
 
 
@@ -238,6 +273,10 @@ def _runs(rows: dict, data: dict) -> list[dict]:
     return runs + list(rows.get("generalist_flights_run", {}).values())
 
 
+def _before_commit(path: Path) -> str:
+    return json.loads(path.read_text()).get("commit_of_the_table", "?") if path.is_file() else "?"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("json", type=Path)
@@ -247,23 +286,27 @@ def main(argv: list[str] | None = None) -> int:
         "rotorpy": rotorpy,
         "rotorpy-holding": rotorpy_holding,
         "training": training,
+        "lag-fix": None,  # with the flights before the correction, beside the JSON
     }
     p.add_argument("--table", choices=sorted(tables), default="holding")
     p.add_argument("--plot", type=Path, help="Draw the plot there instead of printing a table.")
     args = p.parse_args(argv)
     data = json.loads(args.json.read_text())
+    before = args.json.with_name(BEFORE_LAG_FIX)
+    tables["lag-fix"] = lambda d: lag_fix(d, json.loads(before.read_text()))
     if args.plot is not None:
         plot(data, args.plot)
         return 0
     print(tables[args.table](data))
     runs = [run for rows in data["airframes"].values() for run in _runs(rows, data)]
-    if args.table.startswith("rotorpy"):
+    if args.table.startswith("rotorpy") or args.table == "lag-fix":
         sides = [rows.get("rotorpy", {}) for rows in data["airframes"].values()]
         runs = [r for side in sides for k, r in side.items() if k.startswith("run")]
     commits = ", ".join(sorted({r["commit"][:10] for r in runs}))
     loads = [r["load_1min_before"] for r in runs]
     per = {
         "rotorpy": "one flight per cell",
+        "lag-fix": f"one flight per cell, before → after (before: commit {_before_commit(before)})",
         "rotorpy-holding": "one flight per cell (✓: the hover rule's 5 cm over the last 2 s)",
         "holding": f"{data['episodes']} episodes per cell (success · mean error over the last 2 s)",
     }.get(args.table, f"{data['episodes']} episodes per cell")
