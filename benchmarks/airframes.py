@@ -208,6 +208,9 @@ def run(
                     rows["ours_training"] = json.loads((folder / "training.json").read_text())
             else:
                 _clear_training(folder)  # an earlier run's, never finished: trained again
+                side = rows.get("rotorpy") or {}
+                for k in [k for k in side if k == "ours" or k.startswith("run ours")]:  # flew the old policy
+                    del side[k]
                 trained = train(vehicle, folder, train_flags or [])
                 (folder / "training.json").write_text(json.dumps(trained, indent=1) + "\n")
                 if flights is not None and "ours_training" in rows:
@@ -345,9 +348,10 @@ def training_record(run_dir: Path) -> dict:
         "eval_success_rate": ev.get("success_rate"),
         "eval_mean_final_distance_m": ev.get("mean_final_distance_m"),
     }
-    if "init_from" in config:
+    if "init_from" in config:  # the run it started from, when its folder is there
         source = Path(config["init_from"]["policy"]).parent
-        out["init_from"] = {**config["init_from"], **(training_record(source) if source != run_dir else {})}
+        there = source != run_dir and (source / "config.json").is_file()
+        out["init_from"] = {**config["init_from"], **(training_record(source) if there else {})}
     return out
 
 
@@ -375,6 +379,8 @@ def run_generalist(
                 rows.setdefault("generalist_flights_run", {}).update(
                     {f: rows["generalist_export"]["run"] for f in flown}
                 )
+            else:  # every flight flown now, at the export's run
+                rows.pop("generalist_flights_run", None)
             for f, r in flown.items():
                 print(f"{name} generalist {f}: {r}", flush=True)
             out.write_text(json.dumps(data, indent=1) + "\n")

@@ -91,13 +91,14 @@ def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatc
     run_dir.mkdir()
     airframes.run_generalist(out, ["x500"], run_dir / "policy.pt", policies, 1)
     data = json.loads(out.read_text())
-    data["airframes"]["x500"]["rotorpy"] = {"ours": {"hover": {"success": True}}}
+    flown = {"hover": {"success": True}}
+    data["airframes"]["x500"]["rotorpy"] = {"ours": flown, "generalist": flown, "run ours: hover": {}}
     out.write_text(json.dumps(data))
 
     airframes.run(out, ["x500"], episodes=1, merge=True, policies=policies)  # the whole airframe again
     rows = json.loads(out.read_text())["airframes"]["x500"]
     assert set(rows["generalist"]) == set(airframes.FLIGHTS) and "generalist_export" in rows
-    assert rows["rotorpy"] == {"ours": {"hover": {"success": True}}}
+    assert rows["rotorpy"] == {"generalist": flown}  # ours was trained again: its RotorPy flights are gone
     assert (policies / "x500" / "generalist.onnx").read_text() == "exported"  # retraining kept it
 
     airframes.run_generalist(out, ["x500"], run_dir / "policy.pt", policies, 1, {"wind": airframes.FLIGHTS["wind"]})

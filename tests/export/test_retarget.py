@@ -148,3 +148,8 @@ def test_output_names_never_overwrite_the_checkpoint_or_another_policy(generalis
     assert main([str(ckpt), "-o", str(tmp_path / "full.onnx"), "--vehicle", "crazyflie"]) == 1
     assert "No space left" in capsys.readouterr().err
     assert not (tmp_path / "full.pt").exists() and not (tmp_path / "full.onnx").exists()
+    # a failed export over an earlier one leaves that pair as it was: the ONNX file names its .pt
+    pair = tmp_path / "policy_crazyflie.pt"
+    earlier = pair.read_bytes()
+    assert main([str(ckpt), "--vehicle", ROTORPY_ORDER, "-o", str(pair.with_suffix(".onnx"))]) == 1
+    assert pair.read_bytes() == earlier and not list(tmp_path.glob("*.prev"))

@@ -67,6 +67,7 @@ def test_refusals_are_one_line(generalist, tmp_path, capsys):
     out = ["--out", str(tmp_path / "r")]
     refused(["--init-from", str(generalist), "--arch", "mlp", *out], 2, "the run's network is the file's")
     refused(["--init-from", str(generalist), "--algo", "sac", *out], 2, "not --algo sac")
+    refused(["--init-from", str(generalist), "--algo", "sb3", *out], 2, "not --algo sb3")
     refused(["--init-from", str(generalist), "--resume", *out], 2, "continues from its own checkpoint")
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
@@ -82,3 +83,22 @@ def test_refusals_are_one_line(generalist, tmp_path, capsys):
     plus.write_text(head + rotors)
     refused(["--init-from", str(generalist), "--vehicle", str(plus), *out], 2, "not within 30° of a corner")
     assert not (tmp_path / "r").exists()
+
+
+def test_the_resume_hint_drops_init_from():
+    from quadpilot.train.runs.loop import resume_argv
+
+    argv = ["--task", "hover", "--init-from", "gen.pt", "--out", "r", "--init-from=x.pt"]
+    assert resume_argv(argv) == ["--task", "hover", "--out", "r", "--resume"]
+
+
+def test_a_history_policy_starts_only_on_its_own_rotor_order(tmp_path, capsys):
+    """Its input holds its past actions in its own rotor order, which a permuted head would not match."""
+    source = tmp_path / "hist"
+    assert main([*TINY, "--total-steps", "256", "--obs-history", "2", "--out", str(source)]) == 0
+    capsys.readouterr()
+    flags = [*TINY, "--total-steps", "256", "--init-from", str(source / "policy.pt")]
+    assert main([*flags, "--vehicle", ROTORPY_ORDER, "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--obs-history 2" in err and len(err.splitlines()) == 1
+    assert main([*flags, "--out", str(tmp_path / "b")]) == 0  # the same order: fine

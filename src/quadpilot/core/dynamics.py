@@ -52,8 +52,9 @@ axis, RotorPy's parasitic drag D = −|v_a|·diag(c_dx, c_dy, c_dz)·v_a on the 
 v_a = Rᵀ(v − wind) (rotorpy/vehicles/multirotor.py, `compute_body_wrench`), with R and v at the
 start of the substep as for the thrust; `wind` (N, 3) world ENU gives the air's velocity (None:
 still air). RotorPy's rotor aerodynamics (rotor drag, induced inflow, translational lift, blade
-flapping: `core.rotor_aero`) act on the same airspeed, with the rotor speeds and body rates at the
-start of the substep. `_air_terms` computes both from one R and one body airspeed. A vehicle
+flapping: `core.rotor_aero`) act on the same airspeed, with the body rates at the start of the
+substep and the rotor speeds at its end (after the lag's update; with a lag the thrust alone takes
+the step's mean). `_air_terms` computes both from one R and one body airspeed. A vehicle
 without these terms steps with the same operations as before they existed; one with them allocates
 their arrays.
 """
@@ -224,8 +225,8 @@ def _air_terms(sin, cos, vel, rates, w, air, d: _Derived) -> tuple[np.ndarray, n
     """(acceleration (3, N) world ENU, moment (3, N) body FLU or None) of the air on the airframe:
     RotorPy's parasitic drag and its rotor aerodynamics (module docstring), both on the body airspeed
     v_a = Rᵀ(v − wind), from the sines and cosines of the attitude (rows, as `frames.
-    euler_to_rotmat_rows` takes them), the velocity, body rates and normalised rotor speeds w (M, N)
-    at the start of a substep and the air's velocity (None: still air). Allocating: only a vehicle
+    euler_to_rotmat_rows` takes them), the velocity and body rates at the start of a substep, the
+    normalised rotor speeds w (M, N) at its end, and the air's velocity (None: still air). Allocating: only a vehicle
     with these terms pays for them."""
     n = vel.shape[-1]
     rot = euler_to_rotmat_rows(sin, cos, np.empty((3, 3, n), vel.dtype), np.empty(n, vel.dtype))

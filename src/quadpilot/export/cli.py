@@ -183,12 +183,13 @@ def main(argv: list[str] | None = None) -> int:
         except CrossToolError as e:
             print(f"quad-export: error: --target {args.target}: {e}", file=sys.stderr)
             return 1
-    written = None
+    aside = None  # --vehicle: (the ONNX file's stat before, the earlier retargeted policy set aside)
     try:
         if args.format == "px4-raptor":
             return _main_px4_raptor(args, out)
         if args.vehicle is not None:
-            args.checkpoint = written = _retargeted(args, out)
+            aside = _set_aside(out)
+            args.checkpoint = _retargeted(args, out)
         from quadpilot.train.raptor_distill import CONTRACT, is_student_checkpoint
 
         if is_student_checkpoint(args.checkpoint):
@@ -200,13 +201,49 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         return _main_c(args, out) if args.format == "c" else _main_onnx(args, out)
     except Exception as e:  # one line, exit 1, for what the checks let through (see _failure)
-        if written is not None and not out.exists():  # no ONNX file names the retargeted policy
-            written.unlink(missing_ok=True)
+        if aside is not None:
+            _put_back(out, *aside)
+            aside = None
         message = _failure(e)
         if message is None:
             raise
         print(f"quad-export: error: {message}", file=sys.stderr)
         return 1
+    finally:
+        if aside is not None and aside[1] is not None:  # the ONNX file names the new one
+            aside[1].unlink(missing_ok=True)
+
+
+def _stat(path: Path):
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_mtime_ns, st.st_size)
+
+
+def _set_aside(out: Path) -> tuple:
+    """Before --vehicle writes <output>.pt: the ONNX file's stat, and the earlier .pt moved aside
+    (None if there was none), so that a failed export can leave the pair as it found it."""
+    pt = out.with_suffix(".pt")
+    if not pt.exists():
+        return _stat(out), None
+    kept = pt.with_name(pt.name + ".prev")
+    pt.replace(kept)
+    return _stat(out), kept
+
+
+def _put_back(out: Path, onnx_before, kept: Path | None) -> None:
+    """The export failed: if the ONNX file is the one from before (or still none), the retargeted
+    policy goes back to what that file names (or away); a new ONNX file keeps the new policy."""
+    pt = out.with_suffix(".pt")
+    if _stat(out) != onnx_before:
+        if kept is not None:
+            kept.unlink(missing_ok=True)
+        return
+    pt.unlink(missing_ok=True)
+    if kept is not None:
+        kept.replace(pt)
 
 
 def _retargeted(args, out: Path) -> Path:

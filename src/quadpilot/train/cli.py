@@ -340,8 +340,14 @@ def main(argv: list[str] | None = None) -> int:
                 "--vehicle with --randomize airframes: the training draws every episode's airframe itself; "
                 "train without --vehicle, then export for a vehicle with quad-export --vehicle FILE"
             )
-        if args.init_from is not None and (args.resume or args.contract is not None):
-            why = "a resumed run continues from its own checkpoint" if args.resume else "the contract distils its own"
+        if args.init_from is not None and (args.resume or args.contract is not None or args.algo != "ppo"):
+            why = (
+                "a resumed run continues from its own checkpoint"
+                if args.resume
+                else "the contract distils its own"
+                if args.contract is not None
+                else f"not --algo {args.algo}"
+            )
             raise UsageError(f"--init-from starts a fresh run of our PPO; {why}")
         if args.teacher is not None and args.contract is None:
             raise UsageError("--teacher is for --contract px4-raptor (the policy distilled from it)")

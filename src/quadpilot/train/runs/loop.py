@@ -84,7 +84,17 @@ def command(argv: list[str]) -> str:
 
 
 def resume_argv(argv: list[str]) -> list[str]:
-    return argv if "--resume" in argv else [*argv, "--resume"]
+    """The command that resumes this run: with --resume, without --init-from (a resumed run
+    continues from its checkpoint, and quad-train refuses the two together)."""
+    kept, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--init-from":
+            skip = True
+        elif not a.startswith("--init-from="):
+            kept.append(a)
+    return kept if "--resume" in kept else [*kept, "--resume"]
 
 
 def now() -> str:
