@@ -185,20 +185,19 @@ def training(data: dict) -> str:
     g = data.get("generalist_training")
     if g:
         first = g.get("init_from")
+        trained = f"\nThe generalist, trained once: {_run_text(g)}"
         if first and "command" in first:  # trained, then trained on from that policy
-            lines.append(
-                f"\nThe generalist, trained once: `{_command(first['command'])}`, {first['steps']:,} steps in "
-                f"{first['train_s']:.0f} s, then on from that policy: `{_command(g['command'])}`, "
-                f"{g['steps']:,} steps in {g['train_s']:.0f} s; its evaluation over drawn airframes: "
-                f"{100 * g['eval_success_rate']:.0f} % · {_cm(g['eval_mean_final_distance_m'])}."
-            )
-        else:
-            lines.append(
-                f"\nThe generalist, trained once: `{_command(g['command'])}`, {g['steps']:,} steps in "
-                f"{g['train_s']:.0f} s; its evaluation over drawn airframes: {100 * g['eval_success_rate']:.0f} % · "
-                f"{_cm(g['eval_mean_final_distance_m'])}."
-            )
+            trained = f"\nThe generalist, trained once: {_run_text(first)}, then on from that policy: {_run_text(g)}"
+        lines.append(
+            f"{trained}; its evaluation over drawn airframes: {100 * g['eval_success_rate']:.0f} % · "
+            f"{_cm(g['eval_mean_final_distance_m'])}."
+        )
     return "\n".join(lines)
+
+
+def _run_text(r: dict) -> str:
+    """A training run's record (`airframes.training_record`) as the training table's note says it."""
+    return f"`{_command(r['command'])}`, {r['steps']:,} steps in {r['train_s']:.0f} s"
 
 
 def _command(command: str) -> str:

@@ -22,12 +22,11 @@ NETWORK_KEYS = ("arch", "lstm_hidden", "actor_hidden", "critic_hidden", "activat
 """PPOConfig's fields that shape the network (and what it is fed): the new run takes the file's."""
 
 
-def load_source(path: str, algo) -> dict:
-    """The checked checkpoint --init-from names (CheckpointError, exit 1, for a bad file)."""
+def load_source(path: str) -> dict:
+    """The checked checkpoint --init-from names (CheckpointError, exit 1, for a bad file); quad-train
+    has refused --init-from for any --algo but ppo before."""
     from .checkpoint_read import load_checkpoint
 
-    if algo.algo != "ppo":
-        raise UsageError(f"--init-from starts our PPO from a PPO policy; not --algo {algo.algo}")
     ckpt = load_checkpoint(path)
     if ckpt.get("algo", "ppo") != "ppo":
         raise UsageError(f"--init-from {path}: a {ckpt['algo']} policy; it starts PPO runs from PPO policies")

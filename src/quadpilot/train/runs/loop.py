@@ -314,7 +314,7 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
     preset = (args.preset or "fast") if algo.algo == "ppo" else None
     source = None
     if getattr(args, "init_from", None) is not None:  # a fine-tune: the file's network and weights
-        source = init_from.load_source(args.init_from, algo)
+        source = init_from.load_source(args.init_from)
         explicit = init_from.network_options(source, explicit, args.init_from)
     cfg = options.make_config(algo, explicit, preset)
     env_kw = options.env_kwargs(args)
