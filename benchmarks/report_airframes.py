@@ -7,10 +7,10 @@ Tables: `holding` (our simulator: hover, wind, the impulse and the wrong-file fl
 the episodes and the mean error over the last 2 s), `moving` (our simulator: the 1 m step's
 overshoot and settling time, the figure-eight's tracking error), `rotorpy` (RotorPy's PX4 simulator,
 one flight each, from its ground truth), `rotorpy-holding` (RotorPy: the hover and the wrong-file
-flights), `training` (ours: the wall time from the vehicle file to a checked policy.onnx; the
-generalist: the export for the file, and its one training run). Controllers: raptor, ours and,
-where flown, the generalist. A cell that quad-sitl refused, or that RotorPy's harness could not
-finish, says so."""
+flights), `training` (ours and tuned: the wall time from the vehicle file to a checked policy.onnx;
+the generalist: the export for the file, and its one training run). Controllers: raptor, ours and,
+where flown, tuned (the generalist trained on with the file) and the generalist. A cell that
+quad-sitl refused, or that RotorPy's harness could not finish, says so."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 HOLDING = ("hover", "wind", "impulse", "mass+30%", "mass-30%", "thrust+20%", "thrust-20%")
 EIGHTS = ("figure8 1 m/s", "figure8 2 m/s", "figure8 4 m/s")
-CONTROLLERS = ("raptor", "ours", "generalist")
+CONTROLLERS = ("raptor", "ours", "tuned", "generalist")
 
 
 def _cm(v) -> str:
@@ -168,20 +168,21 @@ def rotorpy_holding(data: dict) -> str:
 
 def training(data: dict) -> str:
     lines = [
-        "| airframe | file → checked policy.onnx | training | export and parity | its evaluation | load at start "
-        "| generalist: file → checked ONNX |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| airframe | controller | file → checked policy.onnx | training | export and parity | its evaluation "
+        "| load at start |",
+        "|---|---|---:|---:|---:|---:|---:|",
     ]
     for name, rows in data["airframes"].items():
-        t = rows.get("ours_training")
+        for c, t in (("ours", rows.get("ours_training")), ("tuned", rows.get("tuned_training"))):
+            if t:
+                lines.append(
+                    f"| {name} | {c} | {t['file_to_policy_s']:.0f} s | {t['train_s']:.0f} s | {t['export_s']:.0f} s | "
+                    f"{100 * t['eval_success_rate']:.0f} % · {_cm(t['eval_mean_final_distance_m'])} | "
+                    f"{t['load_1min_before']:.1f} |"
+                )
         g = rows.get("generalist_export")
-        general = f"{g['file_to_policy_s']:.0f} s" if g else "–"
-        if t:
-            lines.append(
-                f"| {name} | {t['file_to_policy_s']:.0f} s | {t['train_s']:.0f} s | {t['export_s']:.0f} s | "
-                f"{100 * t['eval_success_rate']:.0f} % · {_cm(t['eval_mean_final_distance_m'])} | "
-                f"{t['load_1min_before']:.1f} | {general} |"
-            )
+        if g:
+            lines.append(f"| {name} | generalist | {g['file_to_policy_s']:.0f} s (the export) | – | – | – | – |")
     g = data.get("generalist_training")
     if g:
         first = g.get("init_from")
@@ -241,10 +242,11 @@ def plot(data: dict, path: Path) -> None:
     fig, axes = plt.subplots(len(panels), 1, figsize=(10, 3.0 * len(panels)), sharex=True)
     x = np.arange(len(names))
     for ax, (title, get) in zip(axes, panels, strict=True):
-        for j, (c, color) in enumerate((("raptor", "tab:red"), ("ours", "tab:blue"), ("generalist", "tab:green"))):
+        colors = {"raptor": "tab:red", "ours": "tab:blue", "tuned": "tab:purple", "generalist": "tab:green"}
+        for j, (c, color) in enumerate(colors.items()):
             vals = [_get(get, data["airframes"][n], c) for n in names]
             cm = [100 * v if v is not None and math.isfinite(v) else np.nan for v in vals]
-            ax.bar(x + (j - 1) * 0.28, cm, 0.28, label=c, color=color)
+            ax.bar(x + (j - 1.5) * 0.21, cm, 0.21, label=c, color=color)
         ax.axhline(5.0, color="k", lw=0.8, ls="--")  # the hover rule's 5 cm
         ax.set_yscale("log")
         ax.set_ylabel("cm")
@@ -265,11 +267,10 @@ def _get(get, rows: dict, c: str):
 
 def _runs(rows: dict, data: dict) -> list[dict]:
     """When an airframe's cells in our simulator were flown: its run (or the file's), the flights
-    added later, the generalist's export and its flights added later."""
+    added later, the generalist's export, tuned's training and the flights of both added later."""
     runs = [rows.get("run", data), *rows.get("flights_run", {}).values()]
-    if "generalist_export" in rows:
-        runs.append(rows["generalist_export"]["run"])
-    return runs + list(rows.get("generalist_flights_run", {}).values())
+    runs += [rows[k]["run"] for k in ("generalist_export", "tuned_training") if k in rows]
+    return [*runs, *rows.get("generalist_flights_run", {}).values(), *rows.get("tuned_flights_run", {}).values()]
 
 
 def _before_commit(path: Path) -> str:

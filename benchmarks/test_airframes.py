@@ -2,8 +2,10 @@
 `rotorpy`): one airframe from its vehicle file, both controllers, in both simulators. `ours` is
 trained for a few thousand steps only (the table's shape, not its figures), so only RAPTOR's hover
 is held to the hover rule here (it flies the X500: docs/raptor.md). The generalist likewise: trained
-for a few thousand steps over drawn airframes, exported for the X500's file, flown in both."""
+for a few thousand steps over drawn airframes, exported for the X500's file, flown in both; and
+`tuned`, that generalist trained on with the X500's file for a few thousand steps more."""
 
+import hashlib
 import json
 import math
 import subprocess
@@ -66,6 +68,18 @@ def test_one_airframe_from_its_file_in_both_simulators_for_both_controllers(tmp_
     assert "failed" not in raptor["mass+30%"] and heavy != nominal  # the same flight on another plant
     assert "| x500 | generalist |" in r.holding(data) and "| x500 | generalist |" in r.rotorpy(data)
 
+    # tuned: that generalist trained on with the X500's file, timed, flown in both simulators
+    data = airframes.run_tuned(out, ["x500"], policy, policies, 1, {"hover": FLIGHTS["hover"]}, brief)
+    rows = data["airframes"]["x500"]
+    t = rows["tuned_training"]
+    assert t["file_to_policy_s"] == t["train_s"] + t["export_s"] and "--init-from" in t["command"]
+    assert t["init_from_sha256"] == hashlib.sha256(policy.read_bytes()).hexdigest()
+    assert set(rows["tuned"]) == {"hover"} and "refused" not in rows["tuned"]["hover"]
+    data = airframes.run_rotorpy(out, ["x500"], policies, flights=["hover"], controllers=["tuned"])
+    assert "failed" not in data["airframes"]["x500"]["rotorpy"]["tuned"]["hover"]
+    for table in (r.holding, r.rotorpy, r.training):
+        assert "| x500 | tuned |" in table(data)
+
 
 def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatch):
     """The table is built by three subcommands into one JSON: `run` again (whole, or one flight)
@@ -74,13 +88,15 @@ def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatc
     for: this is the JSON's and the folder's bookkeeping, which the smoke test above flies."""
     out, policies = tmp_path / "a.json", tmp_path / "policies"
 
-    def train(vehicle, folder, extra):
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / "policy.onnx").write_text("trained")
-        return {k: 1.0 for k in ("train_s", "export_s", "file_to_policy_s", *airframes.EVAL_KEYS)}
-
     def fly(policy, vehicle, flight, tmp, episodes=airframes.EPISODES):
         return {"success_rate": 1.0, "flight": " ".join(flight)}
+
+    def train(vehicle, folder, extra, flags=airframes.TRAIN):
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "policy.onnx").write_text("trained")
+        source = {"init_from": {"sha256": "s"}} if flags is airframes.TUNE else {}
+        (folder / "config.json").write_text(json.dumps(source))
+        return {k: 1.0 for k in ("train_s", "export_s", "file_to_policy_s", *airframes.EVAL_KEYS)}
 
     monkeypatch.setattr(airframes, "train", train)
     monkeypatch.setattr(airframes, "fly", fly)
@@ -90,16 +106,26 @@ def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatc
     run_dir = tmp_path / "gen"
     run_dir.mkdir()
     airframes.run_generalist(out, ["x500"], run_dir / "policy.pt", policies, 1)
+    airframes.run_tuned(out, ["x500"], run_dir / "policy.pt", policies, 1)
     data = json.loads(out.read_text())
     flown = {"hover": {"success": True}}
-    data["airframes"]["x500"]["rotorpy"] = {"ours": flown, "generalist": flown, "run ours: hover": {}}
+    data["airframes"]["x500"]["rotorpy"] = {"ours": flown, "generalist": flown, "tuned": flown, "run ours: hover": {}}
     out.write_text(json.dumps(data))
 
     airframes.run(out, ["x500"], episodes=1, merge=True, policies=policies)  # the whole airframe again
     rows = json.loads(out.read_text())["airframes"]["x500"]
     assert set(rows["generalist"]) == set(airframes.FLIGHTS) and "generalist_export" in rows
-    assert rows["rotorpy"] == {"generalist": flown}  # ours was trained again: its RotorPy flights are gone
+    assert set(rows["tuned"]) == set(airframes.FLIGHTS) and rows["tuned_training"]["init_from_sha256"] == "s"
+    assert rows["rotorpy"] == {"generalist": flown, "tuned": flown}  # ours was trained again: its RotorPy rows went
     assert (policies / "x500" / "generalist.onnx").read_text() == "exported"  # retraining kept it
+    assert (policies / "x500" / "tuned" / "policy.onnx").read_text() == "trained"
+
+    airframes.run_tuned(out, ["x500"], run_dir / "policy.pt", policies, 1, {"wind": airframes.FLIGHTS["wind"]})
+    rows = json.loads(out.read_text())["airframes"]["x500"]  # a flight added: flown with the policy there
+    assert set(rows["tuned_flights_run"]) == {"wind"} and rows["rotorpy"]["tuned"] == flown
+    airframes.run_tuned(out, ["x500"], run_dir / "policy.pt", policies, 1)  # all again: trained again
+    rows = json.loads(out.read_text())["airframes"]["x500"]
+    assert "tuned" not in rows["rotorpy"] and "tuned_flights_run" not in rows
 
     airframes.run_generalist(out, ["x500"], run_dir / "policy.pt", policies, 1, {"wind": airframes.FLIGHTS["wind"]})
     rows = json.loads(out.read_text())["airframes"]["x500"]
