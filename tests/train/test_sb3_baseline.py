@@ -8,6 +8,7 @@ import json
 import math
 import subprocess
 import sys
+import tempfile
 
 import numpy as np
 import pytest
@@ -214,6 +215,10 @@ def test_quad_train_algo_sb3_writes_our_run_files_and_is_judged_by_our_evaluator
         return real(policy, env_cfg, episodes=episodes, seed=seed)
 
     monkeypatch.setattr(evaluate_module, "evaluate", spy)
+    temp = tmp_path / "temp"  # the temp directory: SB3's logger writes there unless given one
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)  # else SB3 would write there
     out = tmp_path / "sb3"
     assert (
         main(
@@ -222,6 +227,7 @@ def test_quad_train_algo_sb3_writes_our_run_files_and_is_judged_by_our_evaluator
         == 0
     )
     assert "done (sb3), 3,072 steps in 3 updates" in capsys.readouterr().out
+    assert not [p.name for p in temp.iterdir() if p.name.startswith("SB3-")]  # nothing left behind
     names = {p.name for p in out.iterdir()}
     assert {"config.json", "metrics.csv", "eval.json", "curves.png", sb.POLICY_FILE, sb.OBS_NORM_FILE} <= names
     assert (out / "metrics.csv").read_text().splitlines()[0] == HEADER

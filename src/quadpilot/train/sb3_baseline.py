@@ -35,6 +35,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3 import PPO as SB3PPO
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
@@ -353,7 +354,7 @@ def build_model(s: dict, venv: VecEnv) -> _TimedPPO:
     )
     with warnings.catch_warnings():  # SB3's note on a last, shorter minibatch (matched_settings.FIELD_MAP)
         warnings.filterwarnings("ignore", message="You have specified a mini-batch size")
-        return _TimedPPO(
+        model = _TimedPPO(
             s["policy"],
             venv,
             learning_rate=lr,
@@ -363,6 +364,10 @@ def build_model(s: dict, venv: VecEnv) -> _TimedPPO:
             verbose=0,
             **s["ppo"],
         )
+    # SB3's own logger, unless given one, makes an empty folder in the temp directory at every learn();
+    # ours keeps its figures in memory (model.logger.name_to_value) and writes nothing
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return model
 
 
 def _versions() -> dict[str, str]:
