@@ -24,8 +24,9 @@ rest: overshoot, settling time); `figure8 V` (PX4 mc_raptor's figure-eight at a 
 the last 2 s at most 5 cm, yaw rules), the mean error over the last 2 s, the worst heading error,
 crashes, and what the maneuver measures.
 
-RotorPy's side (`rotorpy`, after `run`, with the policies it kept): RAPTOR and ours in RotorPy's PX4
-simulator with each vehicle file's dynamics, `ROTORPY_FLIGHTS`, measured from RotorPy's ground truth.
+RotorPy's side (`rotorpy`, after `run`, with the policies it kept; `--controller` also the generalist
+and tuned, after their subcommands): RAPTOR and ours in RotorPy's PX4 simulator with each vehicle
+file's dynamics, `ROTORPY_FLIGHTS`, measured from RotorPy's ground truth.
 
 The generalist (`generalist OUT --policy generalist.pt --policies DIR`, after `run`): one recurrent
 policy trained once over drawn airframes (`GENERALIST_TRAIN`: quad-train --arch lstm --randomize
@@ -44,8 +45,8 @@ Not here yet: RotorPy's side of the wind, impulse and wrong-file flights.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime as _dt
+import hashlib
 import json
 import math
 import os
@@ -57,7 +58,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+from rotorpy_flights import ATTEMPTS, ROTORPY_DEFAULT, ROTORPY_FLIGHTS, ROTORPY_PLANT, rotorpy_flight
 
 ROOT = Path(__file__).resolve().parents[1]
 SET = ROOT / "benchmarks" / "airframes"
@@ -137,7 +138,8 @@ def train(vehicle: str, folder: Path, extra: list[str], flags: list[str] = TRAIN
     done = subprocess.run(cmd, capture_output=True, text=True)
     t1 = time.perf_counter()
     if done.returncode != 0:
-        raise SystemExit(f"airframes: quad-train --vehicle {vehicle} failed: {done.stderr.strip().splitlines()[-1:]}")
+        said = done.stderr.strip().splitlines()
+        raise SystemExit(f"airframes: quad-train --vehicle {vehicle} failed: {said[-1] if said else done.returncode}")
     exported = subprocess.run(
         [sys.executable, "-m", "quadpilot.export.cli", str(folder / "policy.pt")], capture_output=True, text=True
     )
@@ -146,7 +148,9 @@ def train(vehicle: str, folder: Path, extra: list[str], flags: list[str] = TRAIN
         raise SystemExit(f"airframes: quad-export {folder / 'policy.pt'} failed: {exported.stderr.strip()[-300:]}")
     ev = json.loads((folder / "eval.json").read_text())
     return {
-        "command": "quad-train " + " ".join([*flags, "--vehicle", vehicle, *extra]) + "; quad-export policy.pt",
+        "command": "quad-train "
+        + " ".join([*flags, "--vehicle", vehicle.replace(str(ROOT) + "/", ""), *extra])
+        + "; quad-export policy.pt",
         "train_s": t1 - t0,
         "export_s": t2 - t1,
         "file_to_policy_s": t2 - t0,
@@ -156,9 +160,9 @@ def train(vehicle: str, folder: Path, extra: list[str], flags: list[str] = TRAIN
     }
 
 
-OTHER_ROWS = ("generalist", "generalist_export", "generalist_flights_run", "tuned", "tuned_training", "rotorpy")
-"""An airframe's rows that `generalist`, `tuned` and `rotorpy` write: `run` flies the airframe again
-without them."""
+RUN_ROWS = ("vehicle", "run", "flights_run", "raptor", "ours", "ours_training", "ours_retraining")
+"""An airframe's rows that `run` writes: flying the airframe again whole, it keeps every other row
+(the generalist's, tuned's, RotorPy's), whichever subcommand wrote them."""
 TUNED = "tuned"
 """`tuned`'s run folder in an airframe's policy folder."""
 
@@ -214,7 +218,7 @@ def run(
             rows["vehicle"] = vehicle.replace(str(ROOT) + "/", "")
             when = {"started": data["started"], "commit": commit, "load_1min_before": os.getloadavg()[0]}
             if flights is None:  # the whole airframe again; the other subcommands' rows stay
-                kept = {k: v for k, v in rows.items() if k in OTHER_ROWS}
+                kept = {k: v for k, v in rows.items() if k not in RUN_ROWS}
                 rows = data["airframes"][name] = {"vehicle": rows["vehicle"], "run": when, **kept}
             else:  # these flights added to the airframe's others, with when they were flown
                 rows.setdefault("flights_run", {}).update({f: when for f in flights})
@@ -247,92 +251,6 @@ def run(
     data["load_1min_after"] = os.getloadavg()[0]
     out.write_text(json.dumps(data, indent=1) + "\n")
     return data
-
-
-ROTORPY_FLIGHTS = {
-    "hover": ["--target=0.6,-0.5,0.55"],
-    "step": ["--maneuver", "step"],
-    "figure8 1 m/s": ["--maneuver", "figure8:1"],
-    "figure8 2 m/s": ["--maneuver", "figure8:2"],
-    "figure8 4 m/s": ["--maneuver", "figure8:4"],
-    "mass+30%": ["--target=0.6,-0.5,0.55"],
-    "mass-30%": ["--target=0.6,-0.5,0.55"],
-    "thrust+20%": ["--target=0.6,-0.5,0.55"],
-    "thrust-20%": ["--target=0.6,-0.5,0.55"],
-}
-ROTORPY_PLANT = {
-    "mass+30%": {"mass": 1.3},
-    "mass-30%": {"mass": 0.7},
-    "thrust+20%": {"k_f": 1.2},
-    "thrust-20%": {"k_f": 0.8},
-}
-"""The wrong-file flights in RotorPy: its plant is the vehicle file scaled so (`VehicleParams.scaled`),
-while the policy keeps the file it was made for (RAPTOR: the nominal file's rotor order)."""
-ROTORPY_DEFAULT = ("hover", "step", "figure8 1 m/s", "figure8 2 m/s", "figure8 4 m/s")
-"""`rotorpy`'s flights when none are named (the wrong-file ones are flown by name)."""
-"""RotorPy's side (rotorpy 3.0.0 PX4Multirotor, the vehicle file's parameters through
-`core.rotorpy_vehicle.rotorpy_params`, 100 Hz, MAVLink 1; tests/sitl/test_rotorpy.py's `fly`): one flight
-each from RotorPy's start, 5 m up, level, at rest with its rotors at rest, home from the first fix.
-`hover`: to a point 0.95 m away (tests/sitl/test_rotorpy.py's target), judged on the last 2 s;
-the maneuvers are flown about the start."""
-
-
-ATTEMPTS = 3
-"""RotorPy flights per cell at most, while its steps go on without the node's answer (see `run_rotorpy`)."""
-
-
-def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path, plant: dict | None = None) -> dict:
-    """One flight in RotorPy, measured from RotorPy's own ground truth (its positions brought into
-    the node's local frame: metres from the start, on the node's Earth); `plant`: RotorPy flies the
-    vehicle file scaled so (`ROTORPY_PLANT`)."""
-    from quadpilot.core.maneuver import STEP_DISTANCE_M, FigureEight, Step, parse_maneuver
-    from quadpilot.core.mission import SUCCESS_TOLERANCE_M
-
-    # the node flies a maneuver about its home, the start (the local origin)
-    maneuver = (
-        dataclasses.replace(parse_maneuver(flight[1]), home=(0.0, 0.0, 0.0)) if flight[0] == "--maneuver" else None
-    )
-    duration = maneuver.duration_s if maneuver is not None else 5.0
-    node_flags = (*flight, *(("--vehicle", vehicle) if policy.startswith("raptor:") else ()))
-    target = None if maneuver is not None else tuple(float(v) for v in flight[0].split("=")[1].split(","))
-    flown = vehicle
-    if plant:
-        from quadpilot.core.vehicle_file import load_vehicle_file, vehicle_to_toml
-
-        flown = str(tmp / "plant.toml")
-        Path(flown).write_text(vehicle_to_toml(load_vehicle_file(vehicle).scaled(**plant)))
-    case = t.RotorPyFlight(Path(policy), 100, 1, 0.05, vehicle=flown, duration_s=duration, target=target)
-    case = dataclasses.replace(case, node_flags=node_flags)
-    try:
-        record, summary, _, node = t.fly(case, tmp)
-    except (KeyboardInterrupt, SystemExit):
-        raise
-    except BaseException as e:  # the harness's checks (pytest.fail: RotorPy did not finish): a row that says so
-        return {"failed": (str(e).strip().splitlines() or [type(e).__name__])[0][:300]}
-    rows = record["steps"]
-    scale = np.array([t.ROTORPY_EARTH_RADIUS_M / t.EARTH_RADIUS_M] * 2 + [1.0])
-    # row j is the state after step j, at (j + 1)·dt: the start (RotorPy's origin, 5 m up) goes first,
-    # so that state k is at k·dt, flown on the target of step k, as in quad-sitl's own log
-    p = np.vstack([np.zeros(3), (np.array([r["x"] for r in rows]) - np.array([0.0, 0.0, t.START_UP_M])) / scale])
-    states = np.zeros((len(p), 12))
-    states[:, :3] = p
-    k = round(t.WINDOW_S * 100)
-    out = {
-        "steps": len(rows),
-        "missed_steps": sum(r["reply_t_us"] != r["t_us"] for r in rows),
-        "node_returncode": node.returncode,
-        "fallback_steps": summary.get("fallback_steps"),
-    }
-    if maneuver is None:
-        err = np.linalg.norm(p[-k:] - np.array(target), axis=1).mean()
-        out.update(mean_error_last_2s_m=float(err), success=bool(err <= SUCCESS_TOLERANCE_M))
-    elif isinstance(maneuver, Step):
-        out.update(maneuver.measure(states, 0.01), final_error_m=float(np.linalg.norm(p[-1] - [STEP_DISTANCE_M, 0, 0])))
-    else:
-        assert isinstance(maneuver, FigureEight)
-        ref = np.array([maneuver.target_at(k)[0] for k in range(len(p))])
-        out.update(maneuver.measure(states, ref, 0.01))
-    return out
 
 
 def generalist_policy(policy: Path, vehicle: str, folder: Path) -> dict:
@@ -372,14 +290,23 @@ def training_record(run_dir: Path) -> dict:
     return out
 
 
+def _flown_json(out: Path, episodes: int | None) -> tuple[dict, int]:
+    """The JSON `run` wrote, and the episodes per cell to fly (its own unless `episodes` is given,
+    which must then match)."""
+    if not out.is_file():
+        raise SystemExit(f"airframes: {out}: no such file; `airframes.py run {out}` writes it first")
+    data = json.loads(out.read_text())
+    if episodes is not None and data.get("episodes") != episodes:
+        raise SystemExit(f"airframes: {out} was flown with {data.get('episodes')} episodes; give --episodes to match")
+    return data, data["episodes"]
+
+
 def run_generalist(
-    out: Path, airframes: list[str], policy: Path, policies: Path, episodes: int, flights: dict | None = None
+    out: Path, airframes: list[str], policy: Path, policies: Path, episodes: int | None, flights: dict | None = None
 ) -> dict:
     """The generalist on `airframes` in our simulator, into `out` (the JSON `run` wrote), with the
     training run's record (policy's folder: config.json, eval.json, metrics.csv)."""
-    data = json.loads(out.read_text())
-    if data.get("episodes") != episodes:
-        raise SystemExit(f"airframes: {out} was flown with {data.get('episodes')} episodes; give --episodes to match")
+    data, episodes = _flown_json(out, episodes)
     data["generalist_training"] = training_record(policy.parent)
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     with tempfile.TemporaryDirectory() as tmp:
@@ -409,7 +336,7 @@ def run_tuned(
     airframes: list[str],
     policy: Path,
     policies: Path,
-    episodes: int,
+    episodes: int | None,
     flights: dict | None = None,
     train_flags: list[str] | None = None,
 ) -> dict:
@@ -418,26 +345,39 @@ def run_tuned(
     checked policy.onnx like `ours`, and flown on the same flights. Named `flights` are added to an
     airframe's earlier ones with the policy already there; without them it is trained again (its
     RotorPy rows, of the earlier policy, are dropped)."""
-    data = json.loads(out.read_text())
-    if data.get("episodes") != episodes:
-        raise SystemExit(f"airframes: {out} was flown with {data.get('episodes')} episodes; give --episodes to match")
+    data, episodes = _flown_json(out, episodes)
+    if not policy.is_file():
+        raise SystemExit(f"airframes: --policy {policy}: no such file; give the generalist's policy.pt")
+    digest = hashlib.sha256(policy.read_bytes()).hexdigest()
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     with tempfile.TemporaryDirectory() as tmp:
         for name in airframes:
             vehicle = AIRFRAMES[name]
             rows = data["airframes"].setdefault(name, {"vehicle": vehicle.replace(str(ROOT) + "/", "")})
             folder = policies / name / TUNED
-            when = {"commit": commit, "load_1min_before": os.getloadavg()[0]}
+            when = {
+                "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                "commit": commit,
+                "load_1min_before": os.getloadavg()[0],
+            }
             if flights is None or not (folder / "policy.onnx").is_file() or TUNED not in rows:
+                fresh = folder.with_name(f"{TUNED}.new")  # the earlier policy stays until this one is made
+                shutil.rmtree(fresh, ignore_errors=True)
+                trained = train(vehicle, fresh, ["--init-from", str(policy), *(train_flags or [])], TUNE)
                 shutil.rmtree(folder, ignore_errors=True)
+                fresh.rename(folder)
                 side = rows.get("rotorpy") or {}
-                for k in [k for k in side if k == TUNED or k.startswith(f"run {TUNED}")]:
+                for k in [k for k in side if k == TUNED or k.startswith(f"run {TUNED}")]:  # the earlier policy's
                     del side[k]
-                trained = train(vehicle, folder, ["--init-from", str(policy), *(train_flags or [])], TUNE)
-                source = json.loads((folder / "config.json").read_text()).get("init_from", {})
-                rows["tuned_training"] = {**trained, "init_from_sha256": source.get("sha256"), "run": when}
+                rows["tuned_training"] = {**trained, "init_from_sha256": digest, "run": when}
                 rows[TUNED] = {}
+                rows.pop("tuned_flights_run", None)
                 print(f"{name} tuned trained: {rows['tuned_training']}", flush=True)
+            elif rows.get("tuned_training", {}).get("init_from_sha256") != digest:
+                raise SystemExit(
+                    f"airframes: {name}: its tuned policy was made from another generalist than {policy}; "
+                    "run `tuned` without --flight to train it again"
+                )
             made = str(folder / "policy.onnx")
             flown = {f: fly(made, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()}
             rows[TUNED] = {**rows[TUNED], **flown}
@@ -460,7 +400,7 @@ def run_rotorpy(
     missed_only: bool = False,
 ) -> dict:
     """RotorPy's side of `airframes` (vehicle files only), RAPTOR, the policies `run` trained into
-    `policies` and the generalist exported there, written into `out` (the JSON `run` wrote) under
+    `policies`, the generalist exported there and tuned trained there, written into `out` (the JSON `run` wrote) under
     each airframe's "rotorpy"; `controllers`: only these (the others' rows are kept). A flight in
     which RotorPy stepped on without the node's answer (`missed_steps`: RotorPy waits 10 ms, and a
     late answer then lags every later step by one) is flown again, up to `ATTEMPTS` times in all;
@@ -470,14 +410,22 @@ def run_rotorpy(
     t = rotorpy_flights._load_test_module()
     data = json.loads(out.read_text())
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    files = {"ours": "policy.onnx", "generalist": "generalist.onnx", TUNED: f"{TUNED}/policy.onnx"}
     for name in airframes:
-        files = {"ours": "policy.onnx", "generalist": "generalist.onnx", "tuned": f"{TUNED}/policy.onnx"}
-        wanted = [files[c] for c in controllers or ("ours",) if c in files]
-        if name not in data["airframes"] or not all((policies / name / f).is_file() for f in wanted):
-            raise SystemExit(f"airframes: {name}: run `airframes.py run|generalist {out} --policies {policies}` first")
         vehicle = AIRFRAMES[name]
-        if not vehicle.endswith(".toml"):
+        if not vehicle.endswith(".toml"):  # a preset: RotorPy flies vehicle files
             continue
+        for c in [c for c in controllers or ("ours",) if c in files]:
+            if name not in data["airframes"] or not (policies / name / files[c]).is_file():
+                made_by = {
+                    "ours": "run",
+                    "generalist": "generalist --policy GENERALIST.pt",
+                    TUNED: "tuned --policy GENERALIST.pt",
+                }
+                raise SystemExit(
+                    f"airframes: {name}: no {policies / name / files[c]}; "
+                    f"run `airframes.py {made_by[c]} {out} --policies {policies}` first"
+                )
         rows = data["airframes"][name]
         side = rows.setdefault("rotorpy", {})
         when = {
@@ -535,15 +483,20 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--policy", type=Path, required=True, help="The generalist's policy.pt (GENERALIST_TRAIN).")
     g.add_argument("--policies", type=Path, required=True, help="Writes DIR/AIRFRAME/generalist.onnx (and .pt).")
     g.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every one.")
-    g.add_argument("--episodes", type=int, default=EPISODES)
+    g.add_argument("--episodes", type=int, help="Episodes per cell. Default: OUT's.")
     g.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help="Default: every one.")
     tu = sub.add_parser("tuned", help="The generalist trained on per vehicle file (TUNE), in our simulator.")
     tu.add_argument("out", type=Path)
     tu.add_argument("--policy", type=Path, required=True, help="The generalist's policy.pt, to start from.")
     tu.add_argument("--policies", type=Path, required=True, help="Writes DIR/AIRFRAME/tuned/.")
     tu.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every one.")
-    tu.add_argument("--episodes", type=int, default=EPISODES)
-    tu.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help="Default: every one, trained anew.")
+    tu.add_argument("--episodes", type=int, help="Episodes per cell. Default: OUT's.")
+    tu.add_argument(
+        "--flight",
+        action="append",
+        choices=sorted(FLIGHTS),
+        help="Fly these with the tuned policy already there. Default: train DIR/AIRFRAME/tuned/ again, fly every one.",
+    )
     args = p.parse_args(argv)
     if args.cmd == TUNED:
         chosen = {f: FLIGHTS[f] for f in args.flight} if args.flight else None

@@ -301,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     runs = [run for rows in data["airframes"].values() for run in _runs(rows, data)]
     if args.table.startswith("rotorpy") or args.table == "lag-fix":
         sides = [rows.get("rotorpy", {}) for rows in data["airframes"].values()]
-        runs = [r for side in sides for k, r in side.items() if k.startswith("run")]
+        shown = ("ours", "generalist") if args.table == "lag-fix" else CONTROLLERS
+        runs = [r for side in sides for k, r in side.items() if k == "run" or k.split(":")[0][4:] in shown]
     commits = ", ".join(sorted({r["commit"][:10] for r in runs}))
     loads = [r["load_1min_before"] for r in runs]
     per = {

@@ -11,11 +11,15 @@ first fix). Stored per flight: the policy, rate, MAVLink version, the commands, 
 RotorPy's ground truth over the last 2 s: the mean distance to the target, the mean height error, the
 mean |yaw rate| and the heading change from the start (yaw from RotorPy's quaternion, scalar-last
 x, y, z, w, world ENU, positive counter-clockwise seen from above).
+
+It also holds one flight of benchmarks/airframes.py's RotorPy side (`rotorpy_flight`, `ROTORPY_FLIGHTS`),
+measured the same way.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as _dt
 import importlib.util
 import json
@@ -79,6 +83,95 @@ def measure(t, case, rotorpy: dict, summary: dict) -> dict:
         },
         "node": summary,
     }
+
+
+# --- benchmarks/airframes.py's RotorPy side ---------------------------------------------------
+
+ROTORPY_FLIGHTS = {
+    "hover": ["--target=0.6,-0.5,0.55"],
+    "step": ["--maneuver", "step"],
+    "figure8 1 m/s": ["--maneuver", "figure8:1"],
+    "figure8 2 m/s": ["--maneuver", "figure8:2"],
+    "figure8 4 m/s": ["--maneuver", "figure8:4"],
+    "mass+30%": ["--target=0.6,-0.5,0.55"],
+    "mass-30%": ["--target=0.6,-0.5,0.55"],
+    "thrust+20%": ["--target=0.6,-0.5,0.55"],
+    "thrust-20%": ["--target=0.6,-0.5,0.55"],
+}
+ROTORPY_PLANT = {
+    "mass+30%": {"mass": 1.3},
+    "mass-30%": {"mass": 0.7},
+    "thrust+20%": {"k_f": 1.2},
+    "thrust-20%": {"k_f": 0.8},
+}
+"""The wrong-file flights in RotorPy: its plant is the vehicle file scaled so (`VehicleParams.scaled`),
+while the policy keeps the file it was made for (RAPTOR: the nominal file's rotor order)."""
+ROTORPY_DEFAULT = ("hover", "step", "figure8 1 m/s", "figure8 2 m/s", "figure8 4 m/s")
+"""`rotorpy`'s flights when none are named (the wrong-file ones are flown by name)."""
+"""RotorPy's side (rotorpy 3.0.0 PX4Multirotor, the vehicle file's parameters through
+`core.rotorpy_vehicle.rotorpy_params`, 100 Hz, MAVLink 1; tests/sitl/test_rotorpy.py's `fly`): one flight
+each from RotorPy's start, 5 m up, level, at rest with its rotors at rest, home from the first fix.
+`hover`: to a point 0.95 m away (tests/sitl/test_rotorpy.py's target), judged on the last 2 s;
+the maneuvers are flown about the start."""
+
+
+ATTEMPTS = 3
+"""RotorPy flights per cell at most, while its steps go on without the node's answer (airframes.py's
+`run_rotorpy`)."""
+
+
+def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path, plant: dict | None = None) -> dict:
+    """One flight in RotorPy, measured from RotorPy's own ground truth (its positions brought into
+    the node's local frame: metres from the start, on the node's Earth); `plant`: RotorPy flies the
+    vehicle file scaled so (`ROTORPY_PLANT`)."""
+    from quadpilot.core.maneuver import STEP_DISTANCE_M, FigureEight, Step, parse_maneuver
+    from quadpilot.core.mission import SUCCESS_TOLERANCE_M
+
+    # the node flies a maneuver about its home, the start (the local origin)
+    maneuver = (
+        dataclasses.replace(parse_maneuver(flight[1]), home=(0.0, 0.0, 0.0)) if flight[0] == "--maneuver" else None
+    )
+    duration = maneuver.duration_s if maneuver is not None else 5.0
+    node_flags = (*flight, *(("--vehicle", vehicle) if policy.startswith("raptor:") else ()))
+    target = None if maneuver is not None else tuple(float(v) for v in flight[0].split("=")[1].split(","))
+    flown = vehicle
+    if plant:
+        from quadpilot.core.vehicle_file import load_vehicle_file, vehicle_to_toml
+
+        flown = str(tmp / "plant.toml")
+        Path(flown).write_text(vehicle_to_toml(load_vehicle_file(vehicle).scaled(**plant)))
+    case = t.RotorPyFlight(Path(policy), 100, 1, 0.05, vehicle=flown, duration_s=duration, target=target)
+    case = dataclasses.replace(case, node_flags=node_flags)
+    try:
+        record, summary, _, node = t.fly(case, tmp)
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except BaseException as e:  # the harness's checks (pytest.fail: RotorPy did not finish): a row that says so
+        return {"failed": (str(e).strip().splitlines() or [type(e).__name__])[0][:300]}
+    rows = record["steps"]
+    scale = np.array([t.ROTORPY_EARTH_RADIUS_M / t.EARTH_RADIUS_M] * 2 + [1.0])
+    # row j is the state after step j, at (j + 1)·dt: the start (RotorPy's origin, 5 m up) goes first,
+    # so that state k is at k·dt, flown on the target of step k, as in quad-sitl's own log
+    p = np.vstack([np.zeros(3), (np.array([r["x"] for r in rows]) - np.array([0.0, 0.0, t.START_UP_M])) / scale])
+    states = np.zeros((len(p), 12))
+    states[:, :3] = p
+    k = round(t.WINDOW_S * 100)
+    out = {
+        "steps": len(rows),
+        "missed_steps": sum(r["reply_t_us"] != r["t_us"] for r in rows),
+        "node_returncode": node.returncode,
+        "fallback_steps": summary.get("fallback_steps"),
+    }
+    if maneuver is None:
+        err = np.linalg.norm(p[-k:] - np.array(target), axis=1).mean()
+        out.update(mean_error_last_2s_m=float(err), success=bool(err <= SUCCESS_TOLERANCE_M))
+    elif isinstance(maneuver, Step):
+        out.update(maneuver.measure(states, 0.01), final_error_m=float(np.linalg.norm(p[-1] - [STEP_DISTANCE_M, 0, 0])))
+    else:
+        assert isinstance(maneuver, FigureEight)
+        ref = np.array([maneuver.target_at(k)[0] for k in range(len(p))])
+        out.update(maneuver.measure(states, ref, 0.01))
+    return out
 
 
 def run(out: Path) -> dict:

@@ -1,5 +1,5 @@
 """Smoke test of benchmarks/airframes.py (the whole table is `benchmarks/airframes.py run`, then
-`rotorpy`): one airframe from its vehicle file, both controllers, in both simulators. `ours` is
+`rotorpy`): one airframe from its vehicle file, every controller, in both simulators. `ours` is
 trained for a few thousand steps only (the table's shape, not its figures), so only RAPTOR's hover
 is held to the hover rule here (it flies the X500: docs/raptor.md). The generalist likewise: trained
 for a few thousand steps over drawn airframes, exported for the X500's file, flown in both; and
@@ -11,13 +11,15 @@ import math
 import subprocess
 import sys
 
+import pytest
+
 import airframes
 import report_airframes
 
 FLIGHTS = {f: airframes.FLIGHTS[f] for f in ("hover", "mass+30%", "impulse", "step", "figure8 1 m/s")}
 
 
-def test_one_airframe_from_its_file_in_both_simulators_for_both_controllers(tmp_path):
+def test_one_airframe_from_its_file_in_both_simulators_for_every_controller(tmp_path):
     out, policies = tmp_path / "a.json", tmp_path / "policies"
     data = airframes.run(
         out, ["x500"], episodes=1, policies=policies, train_flags=["--total-steps", "8192"], flights=FLIGHTS
@@ -82,10 +84,11 @@ def test_one_airframe_from_its_file_in_both_simulators_for_both_controllers(tmp_
 
 
 def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatch):
-    """The table is built by three subcommands into one JSON: `run` again (whole, or one flight)
-    keeps the generalist's and RotorPy's rows and the generalist exported beside the policy, and
-    `generalist --flight` adds its flights to the earlier ones. Training and flying are stood in
-    for: this is the JSON's and the folder's bookkeeping, which the smoke test above flies."""
+    """The table is built by four subcommands into one JSON: `run` again (whole, or one flight)
+    keeps the generalist's, tuned's and RotorPy's rows and the generalist and tuned policies beside
+    the policy, `generalist --flight` and `tuned --flight` add their flights to the earlier ones, and
+    `tuned` trained again drops its earlier RotorPy rows. Training and flying are stood in for: this
+    is the JSON's and the folder's bookkeeping, which the smoke test above flies."""
     out, policies = tmp_path / "a.json", tmp_path / "policies"
 
     def fly(policy, vehicle, flight, tmp, episodes=airframes.EPISODES):
@@ -94,8 +97,6 @@ def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatc
     def train(vehicle, folder, extra, flags=airframes.TRAIN):
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "policy.onnx").write_text("trained")
-        source = {"init_from": {"sha256": "s"}} if flags is airframes.TUNE else {}
-        (folder / "config.json").write_text(json.dumps(source))
         return {k: 1.0 for k in ("train_s", "export_s", "file_to_policy_s", *airframes.EVAL_KEYS)}
 
     monkeypatch.setattr(airframes, "train", train)
@@ -105,28 +106,38 @@ def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatc
     (policies / "x500" / "generalist.onnx").write_text("exported")
     run_dir = tmp_path / "gen"
     run_dir.mkdir()
-    airframes.run_generalist(out, ["x500"], run_dir / "policy.pt", policies, 1)
-    airframes.run_tuned(out, ["x500"], run_dir / "policy.pt", policies, 1)
+    general = run_dir / "policy.pt"
+    general.write_bytes(b"the generalist")
+    airframes.run_generalist(out, ["x500"], general, policies, 1)
+    airframes.run_tuned(out, ["x500"], general, policies, 1)
+    airframes.run_tuned(out, ["x500"], general, policies, None, {"wind": airframes.FLIGHTS["wind"]})  # OUT's episodes
     data = json.loads(out.read_text())
     flown = {"hover": {"success": True}}
-    data["airframes"]["x500"]["rotorpy"] = {"ours": flown, "generalist": flown, "tuned": flown, "run ours: hover": {}}
+    side = {"ours": flown, "generalist": flown, "tuned": flown, "run ours: hover": {}, "run tuned: hover": {}}
+    data["airframes"]["x500"]["rotorpy"] = side
     out.write_text(json.dumps(data))
 
     airframes.run(out, ["x500"], episodes=1, merge=True, policies=policies)  # the whole airframe again
     rows = json.loads(out.read_text())["airframes"]["x500"]
     assert set(rows["generalist"]) == set(airframes.FLIGHTS) and "generalist_export" in rows
-    assert set(rows["tuned"]) == set(airframes.FLIGHTS) and rows["tuned_training"]["init_from_sha256"] == "s"
-    assert rows["rotorpy"] == {"generalist": flown, "tuned": flown}  # ours was trained again: its RotorPy rows went
+    digest = hashlib.sha256(b"the generalist").hexdigest()
+    assert set(rows["tuned"]) == set(airframes.FLIGHTS) and rows["tuned_training"]["init_from_sha256"] == digest
+    assert set(rows["tuned_flights_run"]) == {"wind"}  # when the added flight was flown: kept
+    kept = {"generalist": flown, "tuned": flown, "run tuned: hover": {}}
+    assert rows["rotorpy"] == kept  # ours was trained again: its RotorPy rows went
     assert (policies / "x500" / "generalist.onnx").read_text() == "exported"  # retraining kept it
     assert (policies / "x500" / "tuned" / "policy.onnx").read_text() == "trained"
 
-    airframes.run_tuned(out, ["x500"], run_dir / "policy.pt", policies, 1, {"wind": airframes.FLIGHTS["wind"]})
-    rows = json.loads(out.read_text())["airframes"]["x500"]  # a flight added: flown with the policy there
-    assert set(rows["tuned_flights_run"]) == {"wind"} and rows["rotorpy"]["tuned"] == flown
-    airframes.run_tuned(out, ["x500"], run_dir / "policy.pt", policies, 1)  # all again: trained again
+    general.write_bytes(b"another generalist")  # a flight added must be flown by the policy made from it
+    with pytest.raises(SystemExit, match="made from another generalist"):
+        airframes.run_tuned(out, ["x500"], general, policies, 1, {"step": airframes.FLIGHTS["step"]})
+    with pytest.raises(SystemExit, match="no such file"):
+        airframes.run_tuned(out, ["x500"], run_dir / "missing.pt", policies, 1)
+    airframes.run_tuned(out, ["x500"], general, policies, 1)  # all again: trained again
     rows = json.loads(out.read_text())["airframes"]["x500"]
-    assert "tuned" not in rows["rotorpy"] and "tuned_flights_run" not in rows
+    assert rows["rotorpy"] == {"generalist": flown} and "tuned_flights_run" not in rows
+    assert rows["tuned_training"]["init_from_sha256"] == hashlib.sha256(b"another generalist").hexdigest()
 
-    airframes.run_generalist(out, ["x500"], run_dir / "policy.pt", policies, 1, {"wind": airframes.FLIGHTS["wind"]})
+    airframes.run_generalist(out, ["x500"], general, policies, 1, {"wind": airframes.FLIGHTS["wind"]})
     rows = json.loads(out.read_text())["airframes"]["x500"]
     assert set(rows["generalist"]) == set(airframes.FLIGHTS) and set(rows["generalist_flights_run"]) == {"wind"}
