@@ -39,7 +39,6 @@ the generalist trained on with the airframe's vehicle file for a minute or two (
 --vehicle FILE --init-from generalist.pt), timed from the file to a checked policy.onnx as `ours` is
 (`tuned_training`), flown under "tuned" in both simulators.
 
-Not here yet: RotorPy's side of the wind, impulse and wrong-file flights.
 """
 
 from __future__ import annotations
@@ -446,7 +445,8 @@ def run_rotorpy(
                     continue
                 for attempt in range(1, ATTEMPTS + 1):
                     with tempfile.TemporaryDirectory() as tmp:
-                        flown = rotorpy_flight(t, policy, vehicle, ROTORPY_FLIGHTS[f], Path(tmp), ROTORPY_PLANT.get(f))
+                        flight = ROTORPY_FLIGHTS[f]
+                        flown = rotorpy_flight(t, policy, vehicle, flight, Path(tmp), ROTORPY_PLANT.get(f), f)
                     side[controller][f] = {**flown, "attempts": attempt}
                     if not flown.get("missed_steps"):
                         break

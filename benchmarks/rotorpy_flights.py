@@ -97,7 +97,16 @@ ROTORPY_FLIGHTS = {
     "mass-30%": ["--target=0.6,-0.5,0.55"],
     "thrust+20%": ["--target=0.6,-0.5,0.55"],
     "thrust-20%": ["--target=0.6,-0.5,0.55"],
+    "wind": ["--target=0.6,-0.5,0.55"],
+    "impulse": ["--target=0.6,-0.5,0.55"],
 }
+ROTORPY_SIM = {"wind": ("--wind", "2,0,0", "--gust", "1"), "impulse": ("--impulse", "1@3")}
+"""The disturbances in RotorPy (tests/sitl/rotorpy_px4.py's flags), as in our simulator: `wind` a
+steady 2 m/s east with gusts of a standard deviation of 1 m/s per axis about it (RotorPy's
+SinusoidWind at periods of 2 to 3.4 s; ours: random, correlated over 2 s); `impulse` the velocity
+jumping by 1 m/s east 3 s in."""
+ROTORPY_DURATION = {"impulse": 7.0}
+"""s of a hover flight when not 5 (the impulse: judged over the last 2 s of 7, as in our simulator)."""
 ROTORPY_PLANT = {
     "mass+30%": {"mass": 1.3},
     "mass-30%": {"mass": 0.7},
@@ -120,10 +129,13 @@ ATTEMPTS = 3
 `run_rotorpy`)."""
 
 
-def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path, plant: dict | None = None) -> dict:
+def rotorpy_flight(
+    t, policy: str, vehicle: str, flight: list[str], tmp: Path, plant: dict | None = None, name: str = ""
+) -> dict:
     """One flight in RotorPy, measured from RotorPy's own ground truth (its positions brought into
     the node's local frame: metres from the start, on the node's Earth); `plant`: RotorPy flies the
-    vehicle file scaled so (`ROTORPY_PLANT`)."""
+    vehicle file scaled so (`ROTORPY_PLANT`); `name`: the flight's, for its disturbance
+    (`ROTORPY_SIM`) and length (`ROTORPY_DURATION`)."""
     from quadpilot.core.maneuver import STEP_DISTANCE_M, FigureEight, Step, parse_maneuver
     from quadpilot.core.mission import SUCCESS_TOLERANCE_M
 
@@ -131,7 +143,7 @@ def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path, p
     maneuver = (
         dataclasses.replace(parse_maneuver(flight[1]), home=(0.0, 0.0, 0.0)) if flight[0] == "--maneuver" else None
     )
-    duration = maneuver.duration_s if maneuver is not None else 5.0
+    duration = maneuver.duration_s if maneuver is not None else ROTORPY_DURATION.get(name, 5.0)
     node_flags = (*flight, *(("--vehicle", vehicle) if policy.startswith("raptor:") else ()))
     target = None if maneuver is not None else tuple(float(v) for v in flight[0].split("=")[1].split(","))
     flown = vehicle
@@ -141,7 +153,7 @@ def rotorpy_flight(t, policy: str, vehicle: str, flight: list[str], tmp: Path, p
         flown = str(tmp / "plant.toml")
         Path(flown).write_text(vehicle_to_toml(load_vehicle_file(vehicle).scaled(**plant)))
     case = t.RotorPyFlight(Path(policy), 100, 1, 0.05, vehicle=flown, duration_s=duration, target=target)
-    case = dataclasses.replace(case, node_flags=node_flags)
+    case = dataclasses.replace(case, node_flags=node_flags, sim_flags=ROTORPY_SIM.get(name, ()))
     try:
         record, summary, _, node = t.fly(case, tmp)
     except (KeyboardInterrupt, SystemExit):

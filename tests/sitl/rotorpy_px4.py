@@ -2,7 +2,7 @@
 10 ms wait for the autopilot's answer must not share a GIL with anything):
 
     python rotorpy_px4.py PORT RATE_HZ STEPS OUT.json [--mavlink 1|2] [--seed N] [--vehicle sih|hummingbird]
-                          [--vehicle-file FILE.toml]
+                          [--vehicle-file FILE.toml] [--wind E,N,U] [--gust M/S] [--impulse DV@T]
 
 `rotorpy.vehicles.px4_multirotor.PX4Multirotor` with RotorPy's PX4 SIH quad-X parameters
 (`px4_sihsim_quadx_params`, PX4's 10040_sihsim_quadx airframe) or its AscTec Hummingbird
@@ -12,7 +12,12 @@ rotors in the file's output order, so a policy's outputs reach the rotors they w
 It listens on tcp 127.0.0.1:PORT, waits (in its constructor) for the autopilot's HEARTBEAT,
 then loops `state = vehicle.step(state, control, 1 / RATE_HZ)` STEPS times: each step sends
 HIL_STATE_QUATERNION and HIL_SENSOR and waits up to 10 ms for one HIL_ACTUATOR_CONTROLS, else flies
-the step on zero motors.
+the step on zero motors. The wind is RotorPy's own, set into the state before each step as RotorPy's
+`simulate` does (`wind_profile.update(t, x)`): `--wind` a constant (`ConstantWind`), plus with
+`--gust G` RotorPy's `SinusoidWind` on each axis, amplitude √2·G (a standard deviation of G, as
+quad-sitl's --gust gives its gusts) at `GUST_HZ`. (RotorPy's `DrydenGust`, stepped at 100 Hz at
+these heights, moves the wind by millimetres per second over a flight of seconds: no gust.)
+`--impulse DV@T`: at T s the velocity jumps by DV m/s east (world x), a hit.
 
 What it measures, without touching RotorPy's code path: the connection's `recv_match` is wrapped to
 record what RotorPy's step got back and how long it waited. OUT.json holds per step the time_usec
@@ -42,6 +47,9 @@ args.add_argument("--mavlink", type=int, choices=(1, 2), default=1)
 args.add_argument("--seed", type=int, default=0)
 args.add_argument("--vehicle", choices=("sih", "hummingbird"), default="sih")
 args.add_argument("--vehicle-file", help="a vehicle file, flown with RotorPy's dynamics (instead of --vehicle)")
+args.add_argument("--wind", default="0,0,0", help="mean wind, m/s, world ENU: E,N,U")
+args.add_argument("--gust", type=float, default=0.0, help="gusts' standard deviation per axis, m/s")
+args.add_argument("--impulse", help="DV@T: at T s the velocity jumps by DV m/s east")
 args = args.parse_args()
 if args.mavlink == 2:
     os.environ["MAVLINK20"] = "1"
@@ -50,6 +58,7 @@ else:
 
 import numpy as np  # noqa: E402
 from rotorpy.vehicles.px4_multirotor import PX4Multirotor  # noqa: E402
+from rotorpy.wind.default_winds import ConstantWind, SinusoidWind  # noqa: E402
 
 if args.vehicle_file:
     from quadpilot.core.rotorpy_vehicle import rotorpy_params
@@ -84,13 +93,22 @@ def watched_recv_match(*a, **kw):
 
 vehicle.conn.recv_match = watched_recv_match
 dt = 1.0 / args.rate_hz
+GUST_HZ = (0.5, 0.37, 0.29)  # east, north, up: periods of 2 to 3.4 s, none a multiple of another
+steady = ConstantWind(*(float(v) for v in args.wind.split(",")))
+gusts = SinusoidWind(amplitudes=np.full(3, np.sqrt(2.0) * args.gust), frequencies=np.array(GUST_HZ))
+hit_dv, hit_step = (0.0, -1) if not args.impulse else (float(args.impulse.split("@")[0]), None)
+if args.impulse:
+    hit_step = round(float(args.impulse.split("@")[1]) * args.rate_hz)
 state = {k: v.copy() for k, v in START.items()}
 control = {"cmd_motor_speeds": np.zeros(4)}  # unused: the autopilot's command replaces it
 rows = []
 wall0 = time.perf_counter()
-for _ in range(args.steps):
+for i in range(args.steps):
     t_us = int(vehicle.t * 1e6)  # what PX4Multirotor.step stamps this step's messages with
     got.clear()
+    state["wind"] = np.asarray(steady.update(vehicle.t, state["x"]) + gusts.update(vehicle.t, state["x"]), dtype=float)
+    if i == hit_step:
+        state["v"] = state["v"] + np.array([hit_dv, 0.0, 0.0])
     state = vehicle.step(state, control, dt)
     msg = got.get("msg")
     rows.append(
@@ -101,6 +119,7 @@ for _ in range(args.steps):
             "q": state["q"].tolist(),
             "w": state["w"].tolist(),
             "rotor_speeds": state["rotor_speeds"].tolist(),
+            "wind": state["wind"].tolist(),
             "reply_t_us": None if msg is None else int(msg.time_usec),
             "reply_version": None if msg is None else (1 if msg.get_msgbuf()[0] == 0xFE else 2),
             "reply_armed": None if msg is None else bool(msg.mode & 128),

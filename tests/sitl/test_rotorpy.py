@@ -17,6 +17,7 @@ models/hover_hummingbird (trained from a vehicle file of RotorPy's Hummingbird, 
 rotor numbering) fly to a target about 1 m away within 5 cm. Every flight holds its heading: mean
 |yaw rate| ≤ 0.2 rad/s and heading within 10° of the start over the last 2 s."""
 
+import dataclasses
 import itertools
 import json
 import math
@@ -64,6 +65,8 @@ class RotorPyFlight:
     """--target E,N,U from home (the start position); None: hold the start."""
     node_flags: tuple[str, ...] = ()
     """More quad-sitl flags (--maneuver, --vehicle for a contract policy's rotor order)."""
+    sim_flags: tuple[str, ...] = ()
+    """More rotorpy_px4.py flags (--wind, --gust, --impulse)."""
 
     @property
     def id(self) -> str:
@@ -132,6 +135,7 @@ def fly(case: RotorPyFlight, tmp_path: Path) -> tuple[dict, dict, np.ndarray, su
             "--mavlink",
             str(case.mavlink),
             *(["--vehicle-file", case.vehicle] if case.vehicle.endswith(".toml") else ["--vehicle", case.vehicle]),
+            *case.sim_flags,
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -221,3 +225,30 @@ def test_the_node_flies_rotorpys_px4_simulator(case: RotorPyFlight, tmp_path):
     if case.max_heading_deg is not None:  # it holds the heading it started with (RotorPy's start: yaw 0)
         assert heading_deg <= case.max_heading_deg
     assert math.isclose(s["error_last_2s_m"], error, abs_tol=0.01)  # the node saw what RotorPy did
+
+
+def test_rotorpys_wind_and_a_hit_reach_the_flight(tmp_path):
+    """rotorpy_px4.py --wind/--gust/--impulse: RotorPy's own wind sets the state's wind before every
+    step, the hit adds its velocity once, and the policy still flies to its target against both."""
+    still = RotorPyFlight(SIH, 100, 1, 0.05, target=(0.6, -0.5, 0.55), duration_s=5.0)
+    hit = dataclasses.replace(still, sim_flags=("--wind", "2,0,0", "--impulse", "1@2"))
+    gust = dataclasses.replace(still, sim_flags=("--wind", "2,0,0", "--gust", "1"))
+    runs = {}
+    for name, case in (("still", still), ("hit", hit), ("gust", gust)):
+        (tmp_path / name).mkdir()
+        runs[name] = fly(case, tmp_path / name)
+    rows = {name: r[0]["steps"] for name, r in runs.items()}
+    assert all(r["wind"] == [0.0, 0.0, 0.0] for r in rows["still"])
+    assert all(r["wind"] == [2.0, 0.0, 0.0] for r in rows["hit"])  # ConstantWind, east
+    gusts = np.array([r["wind"] for r in rows["gust"]])  # about the mean, a standard deviation of about 1 m/s
+    assert np.all((gusts.std(axis=0) > 0.7) & (gusts.std(axis=0) < 1.3)) and abs(gusts[:, 0].mean() - 2.0) < 0.5
+    # the hit: step 200's velocity jumps east by about 1 m/s more than the step before's change
+    v = np.array([r["v"] for r in rows["hit"]])
+    jump = (v[200, 0] - v[199, 0]) - (v[199, 0] - v[198, 0])
+    assert 0.8 < jump < 1.2, jump
+    for name, (record, _, _, node) in runs.items():
+        assert node.returncode == 0, (name, node.stderr)
+        p = np.array([r["x"] for r in record["steps"][-100:]]) - [0.0, 0.0, START_UP_M]
+        p /= [ROTORPY_EARTH_RADIUS_M / EARTH_RADIUS_M] * 2 + [1.0]
+        error = np.linalg.norm(p - np.array(still.target), axis=1).mean()
+        assert error < 0.1, (name, error)  # over the last second: held in the wind, back after the hit
