@@ -6,8 +6,8 @@
 Tables: `holding` (our simulator: hover, wind, the impulse and the wrong-file flights: success of
 the episodes and the mean error over the last 2 s), `moving` (our simulator: the 1 m step's
 overshoot and settling time, the figure-eight's tracking error), `rotorpy` (RotorPy's PX4 simulator,
-one flight each, from its ground truth), `rotorpy-holding` (RotorPy: the hover and the wrong-file
-flights), `training` (ours and tuned: the wall time from the vehicle file to a checked policy.onnx;
+one flight each, from its ground truth), `rotorpy-holding` (RotorPy: the hover, the wind, the impulse and the
+wrong-file flights), `training` (ours and tuned: the wall time from the vehicle file to a checked policy.onnx;
 the generalist: the export for the file, and its one training run). Controllers: raptor, ours and,
 where flown, tuned (the generalist trained on with the file) and the generalist. A cell that
 quad-sitl refused, or that RotorPy's harness could not finish, says so."""
@@ -144,19 +144,23 @@ def lag_fix(data: dict, before: dict) -> str:
 WRONG_FILE = ("mass+30%", "mass-30%", "thrust+20%", "thrust-20%")
 
 
+DISTURBED = ("wind", "impulse")
+
+
 def rotorpy_holding(data: dict) -> str:
-    """RotorPy: the hover and the wrong-file flights (the plant scaled, the file as it is), one each."""
+    """RotorPy: the hover, the disturbances and the wrong-file flights (the plant scaled, the file as
+    it is), one each."""
     lines = [
-        "| airframe | controller | hover to 0.95 m | " + " | ".join(WRONG_FILE) + " |",
-        "|---|---|" + "---:|" * (1 + len(WRONG_FILE)),
+        "| airframe | controller | hover to 0.95 m | " + " | ".join((*DISTURBED, *WRONG_FILE)) + " |",
+        "|---|---|" + "---:|" * (1 + len(DISTURBED) + len(WRONG_FILE)),
     ]
     for name, rows in data["airframes"].items():
         side = rows.get("rotorpy") or {}
         for c in [c for c in CONTROLLERS if c in side]:
-            if not any(f in side[c] for f in WRONG_FILE):
+            if not any(f in side[c] for f in (*DISTURBED, *WRONG_FILE)):
                 continue
             cells = []
-            for f in ("hover", *WRONG_FILE):
+            for f in ("hover", *DISTURBED, *WRONG_FILE):
                 r = side[c].get(f)
                 if r is None or "failed" in r:
                     cells.append("–" if r is None else "not flown")
