@@ -38,7 +38,6 @@ the same flights in both simulators, under each airframe's "generalist" and "rot
 the generalist trained on with the airframe's vehicle file for a minute or two (`TUNE`: quad-train
 --vehicle FILE --init-from generalist.pt), timed from the file to a checked policy.onnx as `ours` is
 (`tuned_training`), flown under "tuned" in both simulators.
-
 """
 
 from __future__ import annotations

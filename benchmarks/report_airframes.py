@@ -277,6 +277,16 @@ def _runs(rows: dict, data: dict) -> list[dict]:
     return [*runs, *rows.get("generalist_flights_run", {}).values(), *rows.get("tuned_flights_run", {}).values()]
 
 
+def _flew(key: str, controllers: tuple, flights: tuple) -> bool:
+    """Whether a RotorPy run (its key: "run", a whole run of the default flights, which hold the hover
+    and the maneuvers, or "run CONTROLLER: FLIGHT, FLIGHT" or "run CONTROLLER: the flights with missed
+    steps, again") flew cells of these controllers and flights."""
+    if key == "run":
+        return True
+    controller, _, what = key.removeprefix("run ").partition(": ")
+    return controller in controllers and (what.startswith("the flights") or bool(set(what.split(", ")) & set(flights)))
+
+
 def _before_commit(path: Path) -> str:
     return json.loads(path.read_text()).get("commit_of_the_table", "?") if path.is_file() else "?"
 
@@ -306,7 +316,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.table.startswith("rotorpy") or args.table == "lag-fix":
         sides = [rows.get("rotorpy", {}) for rows in data["airframes"].values()]
         shown = ("ours", "generalist") if args.table == "lag-fix" else CONTROLLERS
-        runs = [r for side in sides for k, r in side.items() if k == "run" or k.split(":")[0][4:] in shown]
+        flights = ("hover", *DISTURBED, *WRONG_FILE) if args.table == "rotorpy-holding" else ("hover", "step", *EIGHTS)
+        runs = [r for side in sides for k, r in side.items() if _flew(k, shown, flights)]
     commits = ", ".join(sorted({r["commit"][:10] for r in runs}))
     loads = [r["load_1min_before"] for r in runs]
     per = {

@@ -116,12 +116,12 @@ ROTORPY_PLANT = {
 """The wrong-file flights in RotorPy: its plant is the vehicle file scaled so (`VehicleParams.scaled`),
 while the policy keeps the file it was made for (RAPTOR: the nominal file's rotor order)."""
 ROTORPY_DEFAULT = ("hover", "step", "figure8 1 m/s", "figure8 2 m/s", "figure8 4 m/s")
-"""`rotorpy`'s flights when none are named (the wrong-file ones are flown by name)."""
-"""RotorPy's side (rotorpy 3.0.0 PX4Multirotor, the vehicle file's parameters through
+"""`rotorpy`'s flights when none are named (the wrong-file ones, the wind and the impulse are flown by
+name). RotorPy's side (rotorpy 3.0.0 PX4Multirotor, the vehicle file's parameters through
 `core.rotorpy_vehicle.rotorpy_params`, 100 Hz, MAVLink 1; tests/sitl/test_rotorpy.py's `fly`): one flight
 each from RotorPy's start, 5 m up, level, at rest with its rotors at rest, home from the first fix.
-`hover`: to a point 0.95 m away (tests/sitl/test_rotorpy.py's target), judged on the last 2 s;
-the maneuvers are flown about the start."""
+`hover`, the wind, the impulse and the wrong files: to a point 0.95 m away (tests/sitl/test_rotorpy.py's
+target), judged on the last 2 s; the maneuvers are flown about the start."""
 
 
 ATTEMPTS = 3

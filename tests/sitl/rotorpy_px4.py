@@ -13,7 +13,7 @@ It listens on tcp 127.0.0.1:PORT, waits (in its constructor) for the autopilot's
 then loops `state = vehicle.step(state, control, 1 / RATE_HZ)` STEPS times: each step sends
 HIL_STATE_QUATERNION and HIL_SENSOR and waits up to 10 ms for one HIL_ACTUATOR_CONTROLS, else flies
 the step on zero motors. The wind is RotorPy's own, set into the state before each step as RotorPy's
-`simulate` does (`wind_profile.update(t, x)`): `--wind` a constant (`ConstantWind`), plus with
+`simulate` does (`wind_profile.update(t, x)`, here at the step's start): `--wind` a constant (`ConstantWind`), plus with
 `--gust G` RotorPy's `SinusoidWind` on each axis, amplitude √2·G (a standard deviation of G, as
 quad-sitl's --gust gives its gusts) at `GUST_HZ`. (RotorPy's `DrydenGust`, stepped at 100 Hz at
 these heights, moves the wind by millimetres per second over a flight of seconds: no gust.)
@@ -22,7 +22,7 @@ these heights, moves the wind by millimetres per second over a flight of seconds
 What it measures, without touching RotorPy's code path: the connection's `recv_match` is wrapped to
 record what RotorPy's step got back and how long it waited. OUT.json holds per step the time_usec
 RotorPy stamped the step's messages with, the ground truth after the step (RotorPy's world ENU,
-body FLU: position, velocity, quaternion x, y, z, w, body rates, rotor speeds), the reply's
+body FLU: position, velocity, quaternion x, y, z, w, body rates, rotor speeds, the wind it flew), the reply's
 time_usec (None: no reply within the 10 ms, the step flew on zero motors), the wait, and when the
 step's HIL_SENSOR left (time.perf_counter(), the host's CLOCK_MONOTONIC on Linux: the node's --trace
 `host_time_s` is on the same clock); then how many HIL_ACTUATOR_CONTROLS were still queued after the
@@ -96,9 +96,12 @@ dt = 1.0 / args.rate_hz
 GUST_HZ = (0.5, 0.37, 0.29)  # east, north, up: periods of 2 to 3.4 s, none a multiple of another
 steady = ConstantWind(*(float(v) for v in args.wind.split(",")))
 gusts = SinusoidWind(amplitudes=np.full(3, np.sqrt(2.0) * args.gust), frequencies=np.array(GUST_HZ))
-hit_dv, hit_step = (0.0, -1) if not args.impulse else (float(args.impulse.split("@")[0]), None)
-if args.impulse:
-    hit_step = round(float(args.impulse.split("@")[1]) * args.rate_hz)
+hit_dv, hit_step = 0.0, -1
+if args.impulse:  # quad-sitl's --impulse, read and bounded as quad-sitl reads it, at the same step
+    from quadpilot.firmware_sim.cli import _impulse
+
+    hit_dv, at = _impulse(args.impulse)
+    hit_step = max(1, round(at * args.rate_hz))
 state = {k: v.copy() for k, v in START.items()}
 control = {"cmd_motor_speeds": np.zeros(4)}  # unused: the autopilot's command replaces it
 rows = []

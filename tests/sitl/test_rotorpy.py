@@ -229,9 +229,10 @@ def test_the_node_flies_rotorpys_px4_simulator(case: RotorPyFlight, tmp_path):
 
 def test_rotorpys_wind_and_a_hit_reach_the_flight(tmp_path):
     """rotorpy_px4.py --wind/--gust/--impulse: RotorPy's own wind sets the state's wind before every
-    step, the hit adds its velocity once, and the policy still flies to its target against both."""
+    step and acts on the vehicle (it leans into a strong wind), the hit adds its velocity once, and the
+    policy still flies to its target against both."""
     still = RotorPyFlight(SIH, 100, 1, 0.05, target=(0.6, -0.5, 0.55), duration_s=5.0)
-    hit = dataclasses.replace(still, sim_flags=("--wind", "2,0,0", "--impulse", "1@2"))
+    hit = dataclasses.replace(still, sim_flags=("--wind", "8,0,0", "--impulse", "1@2"))  # SIH: 0.64 N of drag
     gust = dataclasses.replace(still, sim_flags=("--wind", "2,0,0", "--gust", "1"))
     runs = {}
     for name, case in (("still", still), ("hit", hit), ("gust", gust)):
@@ -239,16 +240,28 @@ def test_rotorpys_wind_and_a_hit_reach_the_flight(tmp_path):
         runs[name] = fly(case, tmp_path / name)
     rows = {name: r[0]["steps"] for name, r in runs.items()}
     assert all(r["wind"] == [0.0, 0.0, 0.0] for r in rows["still"])
-    assert all(r["wind"] == [2.0, 0.0, 0.0] for r in rows["hit"])  # ConstantWind, east
+    assert all(r["wind"] == [8.0, 0.0, 0.0] for r in rows["hit"])  # ConstantWind, east
     gusts = np.array([r["wind"] for r in rows["gust"]])  # about the mean, a standard deviation of about 1 m/s
     assert np.all((gusts.std(axis=0) > 0.7) & (gusts.std(axis=0) < 1.3)) and abs(gusts[:, 0].mean() - 2.0) < 0.5
     # the hit: step 200's velocity jumps east by about 1 m/s more than the step before's change
     v = np.array([r["v"] for r in rows["hit"]])
     jump = (v[200, 0] - v[199, 0]) - (v[199, 0] - v[198, 0])
     assert 0.8 < jump < 1.2, jump
+    change = np.abs(np.diff(v, 2, axis=0))  # no other step changes the velocity so suddenly: one hit
+    change[198:200, 0] = 0.0  # the hit's own two second differences
+    assert change.max() < 0.3, np.unravel_index(change.argmax(), change.shape)
+
+    def lean_east_deg(name: str) -> float:  # the body z axis's east component over the last second, deg
+        x, y, z, w = np.array([r["q"] for r in rows[name][-100:]]).T
+        return float(np.degrees(np.arcsin(2.0 * (x * z + w * y))).mean())
+
+    # against 8 m/s from the west SIH's drag (c_D 0.01 N/(m/s)^2) needs a lean of about 3.7° into it
+    assert lean_east_deg("hit") - lean_east_deg("still") < -2.0, (lean_east_deg("hit"), lean_east_deg("still"))
     for name, (record, _, _, node) in runs.items():
         assert node.returncode == 0, (name, node.stderr)
         p = np.array([r["x"] for r in record["steps"][-100:]]) - [0.0, 0.0, START_UP_M]
         p /= [ROTORPY_EARTH_RADIUS_M / EARTH_RADIUS_M] * 2 + [1.0]
         error = np.linalg.norm(p - np.array(still.target), axis=1).mean()
-        assert error < 0.1, (name, error)  # over the last second: held in the wind, back after the hit
+        # over the last second: held in the wind, back after the hit (in 8 m/s, with no integral action, a
+        # steady offset downwind)
+        assert error < (0.2 if name == "hit" else 0.1), (name, error)
