@@ -56,7 +56,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from rotorpy_flights import ATTEMPTS, ROTORPY_DEFAULT, ROTORPY_FLIGHTS, ROTORPY_PLANT, rotorpy_flight
+from rotorpy_flights import ATTEMPTS, ROTORPY_DEFAULT, ROTORPY_FLIGHTS, rotorpy_flight
 
 ROOT = Path(__file__).resolve().parents[1]
 SET = ROOT / "benchmarks" / "airframes"
@@ -112,6 +112,37 @@ KEPT = (
     "tracking_rms_m",
     "tracking_max_m",
 )
+
+
+def _commit() -> str:
+    """The commit the figures are flown at (HEAD)."""
+    return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+
+
+def _when(commit: str) -> dict:
+    """When a run starts: the time, the commit and the machine's load (each run's record)."""
+    return {
+        "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "commit": commit,
+        "load_1min_before": os.getloadavg()[0],
+    }
+
+
+def _forget_rotorpy(rows: dict, controller: str) -> None:
+    """Drop an airframe's RotorPy flights of `controller` and their run records: flown by a policy
+    trained again."""
+    side = rows.get("rotorpy") or {}
+    for k in [k for k in side if k == controller or k.startswith(f"run {controller}")]:
+        del side[k]
+
+
+def _stamp(rows: dict, key: str, flown: dict, when: dict, added: bool) -> None:
+    """Record under rows[key] when flights `added` to the others were flown; when every flight was
+    flown now, there is nothing to add to the run's own record."""
+    if added:
+        rows.setdefault(key, {}).update({f: when for f in flown})
+    else:
+        rows.pop(key, None)
 
 
 def fly(policy: str, vehicle: str, flight: list[str], tmp: Path, episodes: int = EPISODES) -> dict:
@@ -188,7 +219,7 @@ def run(
 ) -> dict:
     """Fly `airframes` and write the JSON; `merge`: into the one at `out`, keeping its other airframes
     (each airframe's entry says when, at which commit and under which load it was flown)."""
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    commit = _commit()
     data = {
         "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "command": "benchmarks/airframes.py run " + str(out),
@@ -227,9 +258,7 @@ def run(
                     rows["ours_training"] = json.loads((folder / "training.json").read_text())
             else:
                 _clear_training(folder)  # an earlier run's, never finished: trained again
-                side = rows.get("rotorpy") or {}
-                for k in [k for k in side if k == "ours" or k.startswith("run ours")]:  # flew the old policy
-                    del side[k]
+                _forget_rotorpy(rows, "ours")  # flown by the old policy
                 trained = train(vehicle, folder, train_flags or [])
                 (folder / "training.json").write_text(json.dumps(trained, indent=1) + "\n")
                 if flights is not None and "ours_training" in rows:
@@ -306,7 +335,7 @@ def run_generalist(
     training run's record (policy's folder: config.json, eval.json, metrics.csv)."""
     data, episodes = _flown_json(out, episodes)
     data["generalist_training"] = training_record(policy.parent)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    commit = _commit()
     with tempfile.TemporaryDirectory() as tmp:
         for name in airframes:
             vehicle = AIRFRAMES[name]
@@ -317,12 +346,7 @@ def run_generalist(
             flown = {f: fly(made, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()}
             # named flights join the others (a new export of the same policy file flies as the old)
             rows["generalist"] = {**rows.get("generalist", {}), **flown} if flights else flown
-            if flights:
-                rows.setdefault("generalist_flights_run", {}).update(
-                    {f: rows["generalist_export"]["run"] for f in flown}
-                )
-            else:  # every flight flown now, at the export's run
-                rows.pop("generalist_flights_run", None)
+            _stamp(rows, "generalist_flights_run", flown, rows["generalist_export"]["run"], bool(flights))
             for f, r in flown.items():
                 print(f"{name} generalist {f}: {r}", flush=True)
             out.write_text(json.dumps(data, indent=1) + "\n")
@@ -347,26 +371,20 @@ def run_tuned(
     if not policy.is_file():
         raise SystemExit(f"airframes: --policy {policy}: no such file; give the generalist's policy.pt")
     digest = hashlib.sha256(policy.read_bytes()).hexdigest()
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    commit = _commit()
     with tempfile.TemporaryDirectory() as tmp:
         for name in airframes:
             vehicle = AIRFRAMES[name]
             rows = data["airframes"].setdefault(name, {"vehicle": vehicle.replace(str(ROOT) + "/", "")})
             folder = policies / name / TUNED
-            when = {
-                "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-                "commit": commit,
-                "load_1min_before": os.getloadavg()[0],
-            }
+            when = _when(commit)
             if flights is None or not (folder / "policy.onnx").is_file() or TUNED not in rows:
                 fresh = folder.with_name(f"{TUNED}.new")  # the earlier policy stays until this one is made
                 shutil.rmtree(fresh, ignore_errors=True)
                 trained = train(vehicle, fresh, ["--init-from", str(policy), *(train_flags or [])], TUNE)
                 shutil.rmtree(folder, ignore_errors=True)
                 fresh.rename(folder)
-                side = rows.get("rotorpy") or {}
-                for k in [k for k in side if k == TUNED or k.startswith(f"run {TUNED}")]:  # the earlier policy's
-                    del side[k]
+                _forget_rotorpy(rows, TUNED)  # flown by the earlier policy
                 rows["tuned_training"] = {**trained, "init_from_sha256": digest, "run": when}
                 rows[TUNED] = {}
                 rows.pop("tuned_flights_run", None)
@@ -379,10 +397,7 @@ def run_tuned(
             made = str(folder / "policy.onnx")
             flown = {f: fly(made, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()}
             rows[TUNED] = {**rows[TUNED], **flown}
-            if flights:
-                rows.setdefault("tuned_flights_run", {}).update({f: when for f in flown})
-            else:
-                rows.pop("tuned_flights_run", None)
+            _stamp(rows, "tuned_flights_run", flown, when, bool(flights))
             for f, r in flown.items():
                 print(f"{name} tuned {f}: {r}", flush=True)
             out.write_text(json.dumps(data, indent=1) + "\n")
@@ -407,7 +422,7 @@ def run_rotorpy(
 
     t = rotorpy_flights._load_test_module()
     data = json.loads(out.read_text())
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    commit = _commit()
     files = {"ours": "policy.onnx", "generalist": "generalist.onnx", TUNED: f"{TUNED}/policy.onnx"}
     for name in airframes:
         vehicle = AIRFRAMES[name]
@@ -426,11 +441,7 @@ def run_rotorpy(
                 )
         rows = data["airframes"][name]
         side = rows.setdefault("rotorpy", {})
-        when = {
-            "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            "commit": commit,
-            "load_1min_before": os.getloadavg()[0],
-        }
+        when = _when(commit)
         chosen = {"raptor": "raptor:foundation", **{c: str(policies / name / f) for c, f in files.items()}}
         for controller in controllers or ("raptor", "ours"):
             policy = chosen[controller]
@@ -444,8 +455,7 @@ def run_rotorpy(
                     continue
                 for attempt in range(1, ATTEMPTS + 1):
                     with tempfile.TemporaryDirectory() as tmp:
-                        flight = ROTORPY_FLIGHTS[f]
-                        flown = rotorpy_flight(t, policy, vehicle, flight, Path(tmp), ROTORPY_PLANT.get(f), f)
+                        flown = rotorpy_flight(t, policy, vehicle, f, Path(tmp))
                     side[controller][f] = {**flown, "attempts": attempt}
                     if not flown.get("missed_steps"):
                         break
@@ -477,50 +487,40 @@ def main(argv: list[str] | None = None) -> int:
         "--controller", action="append", choices=("raptor", "ours", "generalist", TUNED), help="Default: raptor, ours."
     )
     rp.add_argument("--missed", action="store_true", help="Fly again only the cells of OUT with missed steps.")
-    g = sub.add_parser("generalist", help="The generalist, exported per airframe, in our simulator.")
-    g.add_argument("out", type=Path)
-    g.add_argument("--policy", type=Path, required=True, help="The generalist's policy.pt (GENERALIST_TRAIN).")
-    g.add_argument("--policies", type=Path, required=True, help="Writes DIR/AIRFRAME/generalist.onnx (and .pt).")
-    g.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every one.")
-    g.add_argument("--episodes", type=int, help="Episodes per cell. Default: OUT's.")
-    g.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help="Default: every one.")
-    tu = sub.add_parser("tuned", help="The generalist trained on per vehicle file (TUNE), in our simulator.")
-    tu.add_argument("out", type=Path)
-    tu.add_argument("--policy", type=Path, required=True, help="The generalist's policy.pt, to start from.")
-    tu.add_argument("--policies", type=Path, required=True, help="Writes DIR/AIRFRAME/tuned/.")
-    tu.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every one.")
-    tu.add_argument("--episodes", type=int, help="Episodes per cell. Default: OUT's.")
-    tu.add_argument(
-        "--flight",
-        action="append",
-        choices=sorted(FLIGHTS),
-        help="Fly these with the tuned policy already there. Default: train DIR/AIRFRAME/tuned/ again, fly every one.",
-    )
+    for cmd, what, policy, writes, flight in (
+        (
+            "generalist",
+            "The generalist, exported per airframe, in our simulator.",
+            "The generalist's policy.pt (GENERALIST_TRAIN).",
+            "Writes DIR/AIRFRAME/generalist.onnx (and .pt).",
+            "Default: every one.",
+        ),
+        (
+            TUNED,
+            "The generalist trained on per vehicle file (TUNE), in our simulator.",
+            "The generalist's policy.pt, to start from.",
+            "Writes DIR/AIRFRAME/tuned/.",
+            "Fly these with the tuned policy already there. Default: train DIR/AIRFRAME/tuned/ again, fly every one.",
+        ),
+    ):
+        g = sub.add_parser(cmd, help=what)
+        g.add_argument("out", type=Path)
+        g.add_argument("--policy", type=Path, required=True, help=policy)
+        g.add_argument("--policies", type=Path, required=True, help=writes)
+        g.add_argument("--airframe", action="append", choices=sorted(AIRFRAMES), help="Default: every one.")
+        g.add_argument("--episodes", type=int, help="Episodes per cell. Default: OUT's.")
+        g.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help=flight)
     args = p.parse_args(argv)
-    if args.cmd == TUNED:
-        chosen = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
-        run_tuned(args.out, args.airframe or list(AIRFRAMES), args.policy, args.policies, args.episodes, chosen)
+    airframes = args.airframe or list(AIRFRAMES)
+    if args.cmd == "rotorpy":  # its --flight names RotorPy's flights
+        run_rotorpy(args.out, airframes, args.policies, args.flight, args.controller, args.missed)
         return 0
-    if args.cmd == "rotorpy":
-        run_rotorpy(
-            args.out, args.airframe or list(AIRFRAMES), args.policies, args.flight, args.controller, args.missed
-        )
+    chosen = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
+    if args.cmd in ("generalist", TUNED):
+        learned = run_generalist if args.cmd == "generalist" else run_tuned
+        learned(args.out, airframes, args.policy, args.policies, args.episodes, chosen)
         return 0
-    if args.cmd == "generalist":
-        chosen = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
-        run_generalist(args.out, args.airframe or list(AIRFRAMES), args.policy, args.policies, args.episodes, chosen)
-        return 0
-    flights = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
-    run(
-        args.out,
-        args.airframe or list(AIRFRAMES),
-        args.episodes,
-        args.merge,
-        args.policies,
-        args.reuse,
-        args.train,
-        flights,
-    )
+    run(args.out, airframes, args.episodes, args.merge, args.policies, args.reuse, args.train, chosen)
     return 0
 
 

@@ -96,8 +96,7 @@ def rotorpy(rate: int, mavlink: int, tmp: Path, policy: str = "raptor:foundation
         raise SystemExit(f"RotorPy flight at {rate} Hz: quad-sitl exited {node.returncode}: {node.stderr.strip()}")
     rows = record["steps"]
     k = round(t.WINDOW_S * rate)
-    scale = t.ROTORPY_EARTH_RADIUS_M / t.EARTH_RADIUS_M
-    target = np.array([0.0, 0.0, t.START_UP_M]) + np.array(case.target) * (scale, scale, 1.0)
+    target = t.rotorpy_target(case.target)
     x = np.array([r["x"] for r in rows])
     return {
         "policy": policy,

@@ -145,22 +145,24 @@ WRONG_FILE = ("mass+30%", "mass-30%", "thrust+20%", "thrust-20%")
 
 
 DISTURBED = ("wind", "impulse")
+ROTORPY_HOLDING = ("hover", *DISTURBED, *WRONG_FILE)
+"""The rotorpy-holding table's flights: each to the same point, with a disturbance or a wrong file."""
 
 
 def rotorpy_holding(data: dict) -> str:
     """RotorPy: the hover, the disturbances and the wrong-file flights (the plant scaled, the file as
     it is), one each."""
     lines = [
-        "| airframe | controller | hover to 0.95 m | " + " | ".join((*DISTURBED, *WRONG_FILE)) + " |",
-        "|---|---|" + "---:|" * (1 + len(DISTURBED) + len(WRONG_FILE)),
+        "| airframe | controller | hover to 0.95 m | " + " | ".join(ROTORPY_HOLDING[1:]) + " |",
+        "|---|---|" + "---:|" * len(ROTORPY_HOLDING),
     ]
     for name, rows in data["airframes"].items():
         side = rows.get("rotorpy") or {}
         for c in [c for c in CONTROLLERS if c in side]:
-            if not any(f in side[c] for f in (*DISTURBED, *WRONG_FILE)):
+            if not any(f in side[c] for f in ROTORPY_HOLDING[1:]):
                 continue
             cells = []
-            for f in ("hover", *DISTURBED, *WRONG_FILE):
+            for f in ROTORPY_HOLDING:
                 r = side[c].get(f)
                 if r is None or "failed" in r:
                     cells.append("–" if r is None else "not flown")
@@ -316,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.table.startswith("rotorpy") or args.table == "lag-fix":
         sides = [rows.get("rotorpy", {}) for rows in data["airframes"].values()]
         shown = ("ours", "generalist") if args.table == "lag-fix" else CONTROLLERS
-        flights = ("hover", *DISTURBED, *WRONG_FILE) if args.table == "rotorpy-holding" else ("hover", "step", *EIGHTS)
+        flights = ROTORPY_HOLDING if args.table == "rotorpy-holding" else ("hover", "step", *EIGHTS)
         runs = [r for side in sides for k, r in side.items() if _flew(k, shown, flights)]
     commits = ", ".join(sorted({r["commit"][:10] for r in runs}))
     loads = [r["load_1min_before"] for r in runs]

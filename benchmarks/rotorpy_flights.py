@@ -53,10 +53,7 @@ def measure(t, case, rotorpy: dict, summary: dict) -> dict:
     rows = rotorpy["steps"]
     k = round(t.WINDOW_S * case.rate_hz)
     x = np.array([r["x"] for r in rows])
-    target = np.array([0.0, 0.0, t.START_UP_M])
-    if case.target is not None:  # the node's metres on RotorPy's Earth (see test_rotorpy.py)
-        scale = t.ROTORPY_EARTH_RADIUS_M / t.EARTH_RADIUS_M
-        target += np.array(case.target) * np.array([scale, scale, 1.0])
+    target = t.rotorpy_target(case.target)  # the node's metres on RotorPy's Earth
     # the start is level, facing East (rotorpy_px4.py's START q = (0, 0, 0, 1)): yaw 0
     yaw = np.unwrap(yaw_enu(np.array([[0.0, 0.0, 0.0, 1.0]] + [r["q"] for r in rows])))
     turned = np.degrees(yaw[1:] - yaw[0])[-k:]  # unwrapped: how far it turned, laps included
@@ -129,16 +126,15 @@ ATTEMPTS = 3
 `run_rotorpy`)."""
 
 
-def rotorpy_flight(
-    t, policy: str, vehicle: str, flight: list[str], tmp: Path, plant: dict | None = None, name: str = ""
-) -> dict:
-    """One flight in RotorPy, measured from RotorPy's own ground truth (its positions brought into
-    the node's local frame: metres from the start, on the node's Earth); `plant`: RotorPy flies the
-    vehicle file scaled so (`ROTORPY_PLANT`); `name`: the flight's, for its disturbance
-    (`ROTORPY_SIM`) and length (`ROTORPY_DURATION`)."""
+def rotorpy_flight(t, policy: str, vehicle: str, name: str, tmp: Path) -> dict:
+    """The flight `name` in RotorPy (`ROTORPY_FLIGHTS`, with its scaled plant `ROTORPY_PLANT`, its
+    disturbance `ROTORPY_SIM` and its length `ROTORPY_DURATION`), measured from RotorPy's own ground
+    truth (its positions brought into the node's local frame: metres from the start, on the node's
+    Earth)."""
     from quadpilot.core.maneuver import STEP_DISTANCE_M, FigureEight, Step, parse_maneuver
     from quadpilot.core.mission import SUCCESS_TOLERANCE_M
 
+    flight, plant = ROTORPY_FLIGHTS[name], ROTORPY_PLANT.get(name)
     # the node flies a maneuver about its home, the start (the local origin)
     maneuver = (
         dataclasses.replace(parse_maneuver(flight[1]), home=(0.0, 0.0, 0.0)) if flight[0] == "--maneuver" else None

@@ -89,8 +89,7 @@ def test_rotorpys_px4_simulator_with_sih_quad_x(tmp_path):
     assert node.returncode == 0, node.stderr
     rows = rotorpy["steps"]
     k = round(t.WINDOW_S * case.rate_hz)
-    scale = t.ROTORPY_EARTH_RADIUS_M / t.EARTH_RADIUS_M
-    target = np.array([0.0, 0.0, t.START_UP_M]) + np.array(case.target) * (scale, scale, 1.0)
+    target = t.rotorpy_target(case.target)
     error = np.linalg.norm(np.array([r["x"] for r in rows])[-k:] - target, axis=1).mean()
     yaw_rate = np.abs(np.array([r["w"] for r in rows])[-k:, 2]).mean()
     heading = np.degrees(np.abs(t.rotorpy_yaw(np.array([r["q"] for r in rows])[-k:]))).mean()

@@ -95,6 +95,13 @@ FLIGHTS = [
 ]
 
 
+def rotorpy_target(target: tuple[float, float, float] | None) -> np.ndarray:
+    """The node's --target (E, N, U metres from home, the start), or the start itself, in RotorPy's
+    world ENU: RotorPy turns metres into longitude and latitude on its own Earth radius."""
+    scale = ROTORPY_EARTH_RADIUS_M / EARTH_RADIUS_M
+    return np.array([0.0, 0.0, START_UP_M]) + np.array(target or (0.0, 0.0, 0.0)) * np.array([scale, scale, 1.0])
+
+
 def rotorpy_yaw(q: np.ndarray) -> np.ndarray:
     """Yaw (rad, ENU, wrapped) of RotorPy's quaternions (..., 4) stored x, y, z, w."""
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -184,10 +191,7 @@ def test_the_node_flies_rotorpys_px4_simulator(case: RotorPyFlight, tmp_path):
     # the ground truth, RotorPy's world ENU; the node's target is in its own metres, RotorPy's
     # longitude and latitude scale is its own Earth radius
     x = np.array([r["x"] for r in rows])
-    target = np.array([0.0, 0.0, START_UP_M])
-    if case.target is not None:
-        scale = ROTORPY_EARTH_RADIUS_M / EARTH_RADIUS_M
-        target += np.array(case.target) * np.array([scale, scale, 1.0])
+    target = rotorpy_target(case.target)
     k = round(WINDOW_S * case.rate_hz)
     error = np.linalg.norm(x[-k:] - target, axis=1).mean()
     yaw_rate = np.abs(np.array([r["w"] for r in rows])[-k:, 2]).mean()
@@ -259,9 +263,8 @@ def test_rotorpys_wind_and_a_hit_reach_the_flight(tmp_path):
     assert lean_east_deg("hit") - lean_east_deg("still") < -2.0, (lean_east_deg("hit"), lean_east_deg("still"))
     for name, (record, _, _, node) in runs.items():
         assert node.returncode == 0, (name, node.stderr)
-        p = np.array([r["x"] for r in record["steps"][-100:]]) - [0.0, 0.0, START_UP_M]
-        p /= [ROTORPY_EARTH_RADIUS_M / EARTH_RADIUS_M] * 2 + [1.0]
-        error = np.linalg.norm(p - np.array(still.target), axis=1).mean()
+        x = np.array([r["x"] for r in record["steps"][-100:]])
+        error = np.linalg.norm(x - rotorpy_target(still.target), axis=1).mean()
         # over the last second: held in the wind, back after the hit (in 8 m/s, with no integral action, a
         # steady offset downwind)
         assert error < (0.2 if name == "hit" else 0.1), (name, error)
