@@ -13,13 +13,13 @@ import pytest
 import torch
 
 from quadpilot.core.dynamics import action_to_command
-from quadpilot.core.params import QUAD_X_UNIT, get_preset, unit_layout
-from quadpilot.core.vehicle_file import load_vehicle_file
+from quadpilot.core.params import QUAD_X_UNIT, flu_layout, get_preset, unit_layout
+from quadpilot.core.vehicle_file import load_vehicle_file, resolve_vehicle
 from quadpilot.export.cli import main
 from quadpilot.runtime.backends import load_policy as load_runtime_policy
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.retarget import RetargetError, _head_names, rotor_permutation
+from quadpilot.train.retarget import RetargetError, _head_names, hover_trim, rotor_permutation
 from quadpilot.train.runs.checkpoint import load_policy, save_untrained_policy
 
 ROTORPY_ORDER = "benchmarks/airframes/rotorpy_hummingbird.toml"  # RotorPy numbers from front-left
@@ -153,3 +153,27 @@ def test_output_names_never_overwrite_the_checkpoint_or_another_policy(generalis
     earlier = pair.read_bytes()
     assert main([str(ckpt), "--vehicle", ROTORPY_ORDER, "-o", str(pair.with_suffix(".onnx"))]) == 1
     assert pair.read_bytes() == earlier and not list(tmp_path.glob("*.prev"))
+
+
+def test_an_unbalanced_frame_gets_its_hover_trim_in_the_head(generalists, tmp_path, capsys):
+    """The asymmetric frame hovers only with more thrust on the front rotors (6 cm ahead of the
+    centre of mass) than on the rear ones (11 cm behind): the exported file adds that trim to every
+    action, so that the policy's zero action holds the frame level; a square frame gets none."""
+    vehicle = load_vehicle_file(ASYMMETRIC)
+    trim = hover_trim(vehicle)
+    thrusts = vehicle.hover_thrust * (1.0 + trim)  # the motor map's thrust at action `trim`
+    lay = np.asarray(flu_layout(vehicle.rotors))
+    assert thrusts.sum() == pytest.approx(vehicle.weight)
+    assert abs(thrusts @ lay[:, 0]) < 1e-9 and abs(thrusts @ lay[:, 1]) < 1e-9 and abs(thrusts @ lay[:, 2]) < 1e-9
+    assert trim[0] == pytest.approx(2 * 0.11 / 0.17 - 1) and trim[1] == pytest.approx(2 * 0.06 / 0.17 - 1)
+    for name in ("crazyflie", ROTORPY_ORDER):
+        assert hover_trim(resolve_vehicle(name)) is None
+    out = tmp_path / "asym.onnx"
+    assert main([str(generalists["lstm"]), "-o", str(out), "--vehicle", ASYMMETRIC, "--parity-samples", "200"]) == 0
+    assert "hover trim +0.294 -0.294 +0.294 -0.294" in capsys.readouterr().out
+    original = load_policy(generalists["lstm"])
+    obs = np.random.default_rng(1).normal(0, 0.3, (8, 18)).astype(np.float32)
+    actions, _ = original.step(obs, original.initial_state(8))
+    expect = action_to_command(actions + trim, vehicle.hover_command)
+    got = np.stack([load_runtime_policy(str(out), backend="numpy").act(o) for o in obs])
+    np.testing.assert_allclose(got, expect, atol=2e-6)

@@ -258,8 +258,11 @@ def _retargeted(args, out: Path) -> Path:
     data = retarget_checkpoint(load_checkpoint(args.checkpoint), vehicle, str(args.checkpoint))
     path = out.with_suffix(".pt")
     atomic_write(path, lambda f: torch.save(data, f))
-    order = " ".join(str(i + 1) for i in data["extra"]["retargeted"]["rotor_order"])
-    print(f"quad-export: {args.checkpoint} retargeted to {vehicle.name} (rotors driven by outputs {order}): {path}")
+    done = data["extra"]["retargeted"]
+    order = " ".join(str(i + 1) for i in done["rotor_order"])
+    trim = "" if done["hover_trim"] is None else ", hover trim " + " ".join(f"{t:+.3f}" for t in done["hover_trim"])
+    what = f"rotors driven by outputs {order}{trim}"
+    print(f"quad-export: {args.checkpoint} retargeted to {vehicle.name} ({what}): {path}")
     return path
 
 

@@ -9,6 +9,14 @@ hover command and the metadata describes the file's airframe. It also permutes t
 action head into the file's rotor order: output i of the head drives the training layout's rotor i,
 and the file may number its rotors otherwise (RotorPy's airframes start at front-left).
 
+Every drawn airframe was a square quad-X, whose rotors share the weight equally at hover. A file
+whose rotors sit off the square (the asymmetric frame: front arms 6 cm ahead of the centre of mass,
+rear arms 11 cm behind) hovers only with unequal thrusts, a trim the policy would have to find from
+the flight history as a steady error. The file states that trim (`VehicleParams.hover_thrusts`, the
+allocation with zero torque), so it goes into the action head's bias (`hover_trim`): with the motor
+map's thrust linear in the action (thrust = hover thrust·(1 + a)), rotor i's action a_i + t_i holds
+the file's trim where the policy's a_i = 0 holds a square frame's.
+
 `quad-export --vehicle FILE` calls it and writes the result beside the ONNX file (`<name>.pt`), so
 the source checksum the ONNX metadata records belongs to a file that exists. `quad-train --init-from`
 starts a run from such a policy's weights in its vehicle's rotor order (`permuted_model`,
@@ -21,6 +29,7 @@ import copy
 import dataclasses
 import math
 
+import numpy as np
 import torch
 
 from quadpilot.core.params import VehicleParams, unit_layout
@@ -89,9 +98,20 @@ def permuted_model(ckpt: dict, order: tuple[int, ...]) -> dict:
     return model
 
 
+def hover_trim(vehicle: VehicleParams) -> np.ndarray | None:
+    """Per rotor (the vehicle's order), the action that holds its hover with zero torque, relative to
+    an equal share of the weight: T_i/(W/M) − 1 with T_i = `hover_thrusts`; None for a balanced
+    layout, where every share is equal and the policy's own zero action is the trim."""
+    thrusts = vehicle.hover_thrusts
+    if np.all(thrusts == thrusts[0]):
+        return None
+    return thrusts / vehicle.hover_thrust - 1.0
+
+
 def retarget_checkpoint(ckpt: dict, vehicle: VehicleParams, source: str = "policy") -> dict:
     """A copy of the checkpoint `ckpt` (a loaded policy.pt) that flies `vehicle`: its environment is
-    `vehicle` without randomisation, its action head permuted into the vehicle's rotor order."""
+    `vehicle` without randomisation, its action head permuted into the vehicle's rotor order and its
+    bias offset by the vehicle's hover trim (`hover_trim`) where the layout is not balanced."""
     from quadpilot.train.envs import EnvConfig
 
     env = EnvConfig.from_json(ckpt["env_config"])
@@ -105,10 +125,19 @@ def retarget_checkpoint(ckpt: dict, vehicle: VehicleParams, source: str = "polic
     order = rotor_permutation(unit_layout(env.params), unit_layout(vehicle))
     out = copy.copy(ckpt)
     out["model"] = permuted_model(ckpt, order)
+    trim = hover_trim(vehicle)
+    if trim is not None:
+        bias = _head_names(ckpt)[1]
+        out["model"][bias] = out["model"][bias] + torch.as_tensor(trim, dtype=out["model"][bias].dtype)
     out["env_config"] = dataclasses.replace(env, vehicle=vehicle, randomization=None).to_json()
     out["extra"] = {
         **dict(ckpt.get("extra", {})),
-        "retargeted": {"from": source, "vehicle": vehicle.name, "rotor_order": list(order)},
+        "retargeted": {
+            "from": source,
+            "vehicle": vehicle.name,
+            "rotor_order": list(order),
+            "hover_trim": None if trim is None else [round(float(t), 9) for t in trim],
+        },
     }
     for k in ("optimizer", "trainer", "env", "rng"):  # a deployable file, not a resumable one
         out[k] = {}
