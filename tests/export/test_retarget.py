@@ -174,6 +174,7 @@ def test_an_unbalanced_frame_gets_its_hover_trim_in_the_head(generalists, tmp_pa
     original = load_policy(generalists["lstm"])
     obs = np.random.default_rng(1).normal(0, 0.3, (8, 18)).astype(np.float32)
     actions, _ = original.step(obs, original.initial_state(8))
+    assert np.abs(actions).max() < 1.0 - np.abs(trim).max()  # unclipped, so the trim adds as it is
     expect = action_to_command(actions + trim, vehicle.hover_command)
     got = np.stack([load_runtime_policy(str(out), backend="numpy").act(o) for o in obs])
     np.testing.assert_allclose(got, expect, atol=2e-6)

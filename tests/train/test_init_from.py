@@ -93,7 +93,8 @@ def test_the_resume_hint_drops_init_from():
 
 
 def test_a_history_policy_starts_only_on_its_own_rotor_order(tmp_path, capsys):
-    """Its input holds its past actions in its own rotor order, which a permuted head would not match."""
+    """Its input holds its past actions in its own rotor order, which a permuted head would not match,
+    and without a hover trim, which a trimmed head's would hold."""
     source = tmp_path / "hist"
     assert main([*TINY, "--total-steps", "256", "--obs-history", "2", "--out", str(source)]) == 0
     capsys.readouterr()
@@ -102,3 +103,31 @@ def test_a_history_policy_starts_only_on_its_own_rotor_order(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "--obs-history 2" in err and len(err.splitlines()) == 1
     assert main([*flags, "--out", str(tmp_path / "b")]) == 0  # the same order: fine
+    # the same order but a hover trim the seed frame has not: its past actions would hold it
+    asymmetric = str(ROOT / "benchmarks/airframes/asymmetric.toml")
+    capsys.readouterr()
+    assert main([*flags, "--vehicle", asymmetric, "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "hover trim" in err and "--obs-history 2" in err and len(err.splitlines()) == 1
+
+
+def test_a_run_on_an_unbalanced_frame_starts_with_its_hover_trim(generalist, tmp_path):
+    """From the generalist (square frames) onto the asymmetric frame, the head's bias gains the
+    frame's trim; from a policy trained on the asymmetric frame onto it again, nothing is added (its
+    weights hold the trim already)."""
+    from quadpilot.core.vehicle_file import load_vehicle_file
+    from quadpilot.train.retarget import hover_trim
+
+    asymmetric = str(ROOT / "benchmarks/airframes/asymmetric.toml")
+    trim = hover_trim(load_vehicle_file(asymmetric))
+    flags = [*TINY, "--total-steps", "256", "--set", "lr=0.0", "--vehicle", asymmetric]
+    first, again = tmp_path / "first", tmp_path / "again"
+    assert main([*flags, "--init-from", str(generalist), "--out", str(first)]) == 0
+    assert main([*flags, "--init-from", str(first / "policy.pt"), "--out", str(again)]) == 0
+    bias = _head_names(torch.load(generalist, weights_only=True))[1]
+    b0, b1, b2 = (
+        torch.load(p, weights_only=True)["model"][bias].numpy()
+        for p in (generalist, first / "policy.pt", again / "policy.pt")
+    )
+    np.testing.assert_allclose(b1, b0 + trim, atol=1e-6)
+    np.testing.assert_allclose(b2, b1, atol=1e-6)

@@ -9,7 +9,8 @@ hover command and the metadata describes the file's airframe. It also permutes t
 action head into the file's rotor order: output i of the head drives the training layout's rotor i,
 and the file may number its rotors otherwise (RotorPy's airframes start at front-left).
 
-Every drawn airframe was a square quad-X, whose rotors share the weight equally at hover. A file
+Every drawn airframe is a square quad-X (quad-train refuses --vehicle with --randomize airframes),
+whose rotors share the weight equally at hover. A file
 whose rotors sit off the square (the asymmetric frame: front arms 6 cm ahead of the centre of mass,
 rear arms 11 cm behind) hovers only with unequal thrusts, a trim the policy would have to find from
 the flight history as a steady error. The file states that trim (`VehicleParams.hover_thrusts`, the
@@ -19,8 +20,8 @@ the file's trim where the policy's a_i = 0 holds a square frame's.
 
 `quad-export --vehicle FILE` calls it and writes the result beside the ONNX file (`<name>.pt`), so
 the source checksum the ONNX metadata records belongs to a file that exists. `quad-train --init-from`
-starts a run from such a policy's weights in its vehicle's rotor order (`permuted_model`,
-`runs.init_from`).
+starts a run from such a policy's weights in its vehicle's rotor order, with its trim
+(`vehicle_model`, `runs.init_from`).
 """
 
 from __future__ import annotations
@@ -108,6 +109,31 @@ def hover_trim(vehicle: VehicleParams) -> np.ndarray | None:
     return thrusts / vehicle.hover_thrust - 1.0
 
 
+def vehicle_model(
+    ckpt: dict, order: tuple[int, ...], trained: VehicleParams, vehicle: VehicleParams
+) -> tuple[dict, np.ndarray | None]:
+    """The checkpoint's weights for `vehicle` and the offset added to its action head's bias (None:
+    none): the head in the vehicle's rotor order (`permuted_model`), its bias offset by the
+    vehicle's hover trim less the one the policy was trained with (`hover_trim`; both are None for
+    the square frames a generalist draws, and a policy trained on an unbalanced frame has its trim
+    in its weights already). RetargetError for a policy that sees its past actions (--obs-history):
+    they would hold the offset, which it never saw."""
+    model = permuted_model(ckpt, order)
+    new, old = hover_trim(vehicle), hover_trim(trained)
+    offset = (0.0 if new is None else new) - (0.0 if old is None else old[list(order)])
+    if not np.any(offset != 0.0):
+        return model, None
+    history = int(ckpt.get("ppo_config", {}).get("obs_history", 1))
+    if history > 1:
+        raise RetargetError(
+            f"a policy with --obs-history {history} sees its past actions, and {vehicle.name}'s hover trim would "
+            "shift them by what it never saw; retarget it only between frames with the same trim"
+        )
+    bias = _head_names(ckpt)[1]
+    model[bias] = model[bias] + torch.as_tensor(offset, dtype=model[bias].dtype)
+    return model, offset
+
+
 def retarget_checkpoint(ckpt: dict, vehicle: VehicleParams, source: str = "policy") -> dict:
     """A copy of the checkpoint `ckpt` (a loaded policy.pt) that flies `vehicle`: its environment is
     `vehicle` without randomisation, its action head permuted into the vehicle's rotor order and its
@@ -124,11 +150,7 @@ def retarget_checkpoint(ckpt: dict, vehicle: VehicleParams, source: str = "polic
         raise RetargetError(f"{source}: only PPO policies are retargeted, this one is {ckpt.get('algo')!r}")
     order = rotor_permutation(unit_layout(env.params), unit_layout(vehicle))
     out = copy.copy(ckpt)
-    out["model"] = permuted_model(ckpt, order)
-    trim = hover_trim(vehicle)
-    if trim is not None:
-        bias = _head_names(ckpt)[1]
-        out["model"][bias] = out["model"][bias] + torch.as_tensor(trim, dtype=out["model"][bias].dtype)
+    out["model"], trim = vehicle_model(ckpt, order, env.params, vehicle)
     out["env_config"] = dataclasses.replace(env, vehicle=vehicle, randomization=None).to_json()
     out["extra"] = {
         **dict(ckpt.get("extra", {})),

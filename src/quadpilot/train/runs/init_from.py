@@ -6,9 +6,11 @@ recurrent adaptation, its tracking) and spends minutes, not an hour, on the file
 of the same observation layout may be the start: its network's shape (architecture, widths,
 activation, history, normalisation) is taken over unless a flag names another, which is refused;
 its action head is put into the new vehicle's rotor order (`train.retarget.rotor_permutation`,
-one rotor per corner); its observation statistics come with it. The optimiser, the learning-rate
-schedule, the step count and the seed are the new run's. The run's config.json records the file
-and its checksum (`init_from`); a resumed run continues from its own checkpoint, not the file.
+one rotor per corner) and given the new vehicle's hover trim (`train.retarget.vehicle_model`: the
+asymmetric frame's unequal thrusts, none for a square frame); its observation statistics come with
+it. The optimiser, the learning-rate schedule, the step count and the seed are the new run's. The
+run's config.json records the file and its checksum (`init_from`); a resumed run continues from its
+own checkpoint, not the file.
 """
 
 from __future__ import annotations
@@ -61,7 +63,7 @@ def start_from(agent, ckpt: dict, source: str) -> dict:
 
     from ..envs import EnvConfig
     from ..ppo import rms_state
-    from ..retarget import RetargetError, permuted_model, rotor_permutation
+    from ..retarget import RetargetError, rotor_permutation, vehicle_model
 
     theirs = EnvConfig.from_json(ckpt["env_config"])
     if ckpt["obs_layout"]["name"] != agent.env_cfg.layout.name:
@@ -81,7 +83,11 @@ def start_from(agent, ckpt: dict, source: str) -> dict:
             "on a vehicle with the same order"
         )
     try:
-        agent.model.load_state_dict(permuted_model(ckpt, order))
+        model, _ = vehicle_model(ckpt, order, theirs.params, agent.env_cfg.params)
+    except RetargetError as e:
+        raise UsageError(f"--init-from {source}: {e}") from None
+    try:
+        agent.model.load_state_dict(model)
     except RuntimeError as e:  # shapes: a check in load_checkpoint should have caught it
         raise UsageError(f"--init-from {source}: its weights do not fit this run's network ({str(e)[:200]})") from None
     agent.obs_rms.load_state_dict(rms_state(ckpt["obs_rms"]))
