@@ -56,6 +56,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from report_airframes import TUNED_FROM
 from rotorpy_flights import ATTEMPTS, ROTORPY_DEFAULT, ROTORPY_FLIGHTS, rotorpy_flight
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -239,6 +240,7 @@ def run(
             rows.setdefault("run", {k: old[k] for k in ("started", "commit", "load_1min_before")})
         data["airframes"] = old["airframes"]
         data["flights"] = {**old["flights"], **data["flights"]}  # a flight added to the others
+        data.update({k: v for k, v in old.items() if k not in data and k != "load_1min_after"})  # the generalist's
     with tempfile.TemporaryDirectory() as tmp:
         keep = Path(tmp) / "policies" if policies is None else policies
         for name in airframes:
@@ -334,13 +336,22 @@ def run_generalist(
     """The generalist on `airframes` in our simulator, into `out` (the JSON `run` wrote), with the
     training run's record (policy's folder: config.json, eval.json, metrics.csv)."""
     data, episodes = _flown_json(out, episodes)
-    data["generalist_training"] = training_record(policy.parent)
+    digest = hashlib.sha256(policy.read_bytes()).hexdigest()
+    if flights and data.get("generalist_training", {}).get("sha256", digest) != digest:
+        raise SystemExit(
+            f"airframes: the generalist's flights in {out} were flown by another policy file than {policy}; "
+            "run `generalist` without --flight to export and fly it whole"
+        )
+    _keep_tuneds_generalist(data, digest)
+    data["generalist_training"] = {**training_record(policy.parent), "sha256": digest}
     commit = _commit()
     with tempfile.TemporaryDirectory() as tmp:
         for name in airframes:
             vehicle = AIRFRAMES[name]
             rows = data["airframes"].setdefault(name, {"vehicle": vehicle.replace(str(ROOT) + "/", "")})
             rows["generalist_export"] = generalist_policy(policy, vehicle, policies / name)
+            if not flights:  # a new export, perhaps of another policy file: RotorPy's rows flew the old one
+                _forget_rotorpy(rows, "generalist")
             rows["generalist_export"]["run"] = {"commit": commit, "load_1min_before": os.getloadavg()[0]}
             made = str(policies / name / "generalist.onnx")
             flown = {f: fly(made, vehicle, args, Path(tmp), episodes) for f, args in (flights or FLIGHTS).items()}
@@ -351,6 +362,20 @@ def run_generalist(
                 print(f"{name} generalist {f}: {r}", flush=True)
             out.write_text(json.dumps(data, indent=1) + "\n")
     return data
+
+
+def _keep_tuneds_generalist(data: dict, digest: str) -> None:
+    """Keep, under `TUNED_FROM`, the record of the generalist the tuned policies were trained on
+    from, while the generalist of the JSON (`digest`, its policy file's sha256) is another one; drop
+    it once no tuned policy comes from it. A record from before the records held a checksum is taken
+    to be the one tuned came from."""
+    made_from = {r["tuned_training"]["init_from_sha256"] for r in data["airframes"].values() if "tuned_training" in r}
+    kept = data.get(TUNED_FROM)
+    if kept is not None and (made_from <= {digest} or kept.get("sha256") not in (None, *made_from)):
+        del data[TUNED_FROM]
+    old = data.get("generalist_training")
+    if TUNED_FROM not in data and made_from - {digest} and old and old.get("sha256") in (None, *made_from):
+        data[TUNED_FROM] = old
 
 
 def run_tuned(
@@ -400,6 +425,7 @@ def run_tuned(
             _stamp(rows, "tuned_flights_run", flown, when, bool(flights))
             for f, r in flown.items():
                 print(f"{name} tuned {f}: {r}", flush=True)
+            _keep_tuneds_generalist(data, data.get("generalist_training", {}).get("sha256", ""))
             out.write_text(json.dumps(data, indent=1) + "\n")
     return data
 

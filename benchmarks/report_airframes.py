@@ -20,6 +20,9 @@ import math
 import sys
 from pathlib import Path
 
+TUNED_FROM = "tuned_from_generalist_training"
+"""The JSON's record of the generalist `tuned` was trained on from, while `generalist_training` is
+another one (a generalist made again after `tuned` was; airframes.py's `_keep_tuneds_generalist`)."""
 HOLDING = ("hover", "wind", "impulse", "mass+30%", "mass-30%", "thrust+20%", "thrust-20%")
 EIGHTS = ("figure8 1 m/s", "figure8 2 m/s", "figure8 4 m/s")
 CONTROLLERS = ("raptor", "ours", "tuned", "generalist")
@@ -111,8 +114,15 @@ BEFORE_LAG_FIX = "airframes_before_lag_fix.json"
 thrust became the step's mean of k_f·ω² (see docs/raptor.md)."""
 
 
+LAG_FIX_SHOWN = ("ours",)
+"""The lag-fix table's controllers: the per-airframe policies, trained again from their files after the
+correction. The generalist that flew before and after it has since been replaced by one trained from
+scratch on the corrected model, so its rows now would compare two policies, not two models."""
+
+
 def lag_fix(data: dict, before: dict) -> str:
-    """RotorPy, our two policies on each vehicle file: before the correction → after it."""
+    """RotorPy, our per-airframe policies (`LAG_FIX_SHOWN`) on each vehicle file: before the correction
+    → after it."""
     lines = [
         "| airframe | controller | hover to 0.95 m | step overshoot | figure8 1 m/s | figure8 2 m/s |",
         "|---|---|---:|---:|---:|---:|",
@@ -128,7 +138,7 @@ def lag_fix(data: dict, before: dict) -> str:
     for name, rows in data["airframes"].items():
         side = rows.get("rotorpy") or {}
         old = before["airframes"].get(name, {}).get("rotorpy") or {}
-        for c in ("ours", "generalist"):
+        for c in LAG_FIX_SHOWN:
             if c not in side:
                 continue
             r0, r1 = old.get(c), side[c]
@@ -189,12 +199,15 @@ def training(data: dict) -> str:
         g = rows.get("generalist_export")
         if g:
             lines.append(f"| {name} | generalist | {g['file_to_policy_s']:.0f} s (the export) | – | – | – | – |")
-    g = data.get("generalist_training")
-    if g:
+    earlier = "`tuned` was trained on from an earlier generalist, trained once"
+    for key, who in (("generalist_training", "The generalist, trained once"), (TUNED_FROM, earlier)):
+        g = data.get(key)
+        if not g:
+            continue
         first = g.get("init_from")
-        trained = f"\nThe generalist, trained once: {_run_text(g)}"
+        trained = f"\n{who}: {_run_text(g)}"
         if first and "command" in first:  # trained, then trained on from that policy
-            trained = f"\nThe generalist, trained once: {_run_text(first)}, then on from that policy: {_run_text(g)}"
+            trained = f"\n{who}: {_run_text(first)}, then on from that policy: {_run_text(g)}"
         lines.append(
             f"{trained}; its evaluation over drawn airframes: {100 * g['eval_success_rate']:.0f} % · "
             f"{_cm(g['eval_mean_final_distance_m'])}."
@@ -317,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = [run for rows in data["airframes"].values() for run in _runs(rows, data)]
     if args.table.startswith("rotorpy") or args.table == "lag-fix":
         sides = [rows.get("rotorpy", {}) for rows in data["airframes"].values()]
-        shown = ("ours", "generalist") if args.table == "lag-fix" else CONTROLLERS
+        shown = LAG_FIX_SHOWN if args.table == "lag-fix" else CONTROLLERS
         flights = ROTORPY_HOLDING if args.table == "rotorpy-holding" else ("hover", "step", *EIGHTS)
         runs = [r for side in sides for k, r in side.items() if _flew(k, shown, flights)]
     commits = ", ".join(sorted({r["commit"][:10] for r in runs}))

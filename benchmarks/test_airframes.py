@@ -138,6 +138,38 @@ def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatc
     assert rows["rotorpy"] == {"generalist": flown} and "tuned_flights_run" not in rows
     assert rows["tuned_training"]["init_from_sha256"] == hashlib.sha256(b"another generalist").hexdigest()
 
+    with pytest.raises(SystemExit, match="flown by another policy file"):  # its rows are the first generalist's
+        airframes.run_generalist(out, ["x500"], general, policies, 1, {"wind": airframes.FLIGHTS["wind"]})
+    airframes.run_generalist(out, ["x500"], general, policies, 1)  # exported again: RotorPy flew the old one
+    data = json.loads(out.read_text())
+    assert data["airframes"]["x500"]["rotorpy"] == {} and airframes.TUNED_FROM not in data  # tuned is from this one
+    data["airframes"]["x500"]["rotorpy"] = {"generalist": flown, "ours": flown, "run generalist: hover": {}}
+    out.write_text(json.dumps(data))
     airframes.run_generalist(out, ["x500"], general, policies, 1, {"wind": airframes.FLIGHTS["wind"]})
     rows = json.loads(out.read_text())["airframes"]["x500"]
     assert set(rows["generalist"]) == set(airframes.FLIGHTS) and set(rows["generalist_flights_run"]) == {"wind"}
+    assert rows["rotorpy"]["generalist"] == flown  # a flight added to the same export keeps RotorPy's rows
+
+    # a new generalist: the record of the one tuned came from is kept until no tuned policy comes from it
+    def generalist(content: bytes) -> dict:
+        general.write_bytes(content)
+        airframes.run_generalist(out, ["x500"], general, policies, 1)
+        return json.loads(out.read_text())
+
+    data = generalist(b"a third generalist")
+    assert data["airframes"]["x500"]["rotorpy"] == {"ours": flown}  # only the generalist's rows went
+    assert data[airframes.TUNED_FROM]["sha256"] == hashlib.sha256(b"another generalist").hexdigest()
+    assert data["generalist_training"]["sha256"] == hashlib.sha256(b"a third generalist").hexdigest()
+    airframes.run_tuned(out, ["x500"], general, policies, 1)
+    assert airframes.TUNED_FROM not in json.loads(out.read_text())
+    data = generalist(b"a fourth generalist")  # tuned came from the third
+    assert data[airframes.TUNED_FROM]["sha256"] == hashlib.sha256(b"a third generalist").hexdigest()
+    general.write_bytes(b"neither")  # tuned made from a file that is neither: the kept record is not tuned's
+    airframes.run_tuned(out, ["x500"], general, policies, 1)
+    data = json.loads(out.read_text())
+    assert airframes.TUNED_FROM not in data
+    # a record written before records held a checksum is taken to be tuned's
+    del data["generalist_training"]["sha256"]
+    out.write_text(json.dumps(data))
+    data = generalist(b"a fifth generalist")
+    assert data[airframes.TUNED_FROM]["command"] and "sha256" not in data[airframes.TUNED_FROM]
