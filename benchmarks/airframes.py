@@ -120,6 +120,11 @@ def _commit() -> str:
     return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
 
 
+def _digest(path: Path) -> str:
+    """The sha256 of a policy file: which generalist a record belongs to."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
 def _when(commit: str) -> dict:
     """When a run starts: the time, the commit and the machine's load (each run's record)."""
     return {
@@ -336,7 +341,7 @@ def run_generalist(
     """The generalist on `airframes` in our simulator, into `out` (the JSON `run` wrote), with the
     training run's record (policy's folder: config.json, eval.json, metrics.csv)."""
     data, episodes = _flown_json(out, episodes)
-    digest = hashlib.sha256(policy.read_bytes()).hexdigest()
+    digest = _digest(policy)
     if flights and data.get("generalist_training", {}).get("sha256", digest) != digest:
         raise SystemExit(
             f"airframes: the generalist's flights in {out} were flown by another policy file than {policy}; "
@@ -395,7 +400,7 @@ def run_tuned(
     data, episodes = _flown_json(out, episodes)
     if not policy.is_file():
         raise SystemExit(f"airframes: --policy {policy}: no such file; give the generalist's policy.pt")
-    digest = hashlib.sha256(policy.read_bytes()).hexdigest()
+    digest = _digest(policy)
     commit = _commit()
     with tempfile.TemporaryDirectory() as tmp:
         for name in airframes:

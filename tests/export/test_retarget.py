@@ -178,3 +178,29 @@ def test_an_unbalanced_frame_gets_its_hover_trim_in_the_head(generalists, tmp_pa
     expect = action_to_command(actions + trim, vehicle.hover_command)
     got = np.stack([load_runtime_policy(str(out), backend="numpy").act(o) for o in obs])
     np.testing.assert_allclose(got, expect, atol=2e-6)
+
+
+def test_a_history_policy_is_retargeted_only_where_its_past_actions_match(tmp_path, capsys):
+    """A policy that sees its past actions (--obs-history) takes them in its own rotor order, with no
+    trim: onto a file that numbers its rotors otherwise, or onto an unbalanced frame, its input would
+    hold what it never saw, so it is refused; onto one with its order and no trim it is retargeted.
+    quad-export then refuses it in one line (such a policy runs in-process only) and leaves no file."""
+    from quadpilot.train.cli import main as train
+    from quadpilot.train.retarget import retarget_checkpoint
+    from quadpilot.train.runs.checkpoint import load_checkpoint
+
+    tiny = ["--num-envs", "16", "--rollout-steps", "16", "--minibatch-size", "64", "--threads", "1"]
+    tiny += ["--eval-episodes", "0", "--eval-every", "0", "--task", "hover", "--total-steps", "256"]
+    assert train([*tiny, "--randomize", "airframes", "--obs-history", "2", "--out", str(tmp_path / "run")]) == 0
+    history = tmp_path / "run" / "policy.pt"
+    ckpt = load_checkpoint(history)
+    for vehicle, why in ((ROTORPY_ORDER, "numbers its rotors otherwise"), (ASYMMETRIC, "hover trim")):
+        with pytest.raises(RetargetError, match=why):
+            retarget_checkpoint(ckpt, load_vehicle_file(vehicle))
+    assert retarget_checkpoint(ckpt, get_preset("crazyflie"))["extra"]["retargeted"]["rotor_order"] == [0, 1, 2, 3]
+    capsys.readouterr()
+    out = tmp_path / "cf.onnx"
+    assert main([str(history), "-o", str(out), "--vehicle", "crazyflie"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "in-process only" in err and len(err.splitlines()) == 1
+    assert not out.exists() and not out.with_suffix(".pt").exists()

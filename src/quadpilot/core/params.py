@@ -287,6 +287,12 @@ class VehicleParams:
         return _trim_thrusts(self)
 
     @property
+    def balanced(self) -> bool:
+        """Every rotor holds the same share of the weight at hover (`hover_thrusts`)."""
+        trim = self.hover_thrusts
+        return bool(np.all(trim == trim[0]))
+
+    @property
     def hover_omega(self) -> float:
         """rad/s per rotor at hover."""
         return math.sqrt(self.hover_thrust / self.k_f)
@@ -301,10 +307,9 @@ class VehicleParams:
     def hover_commands(self) -> np.ndarray:
         """(M,) per-rotor ω/ω_max that hold hover with zero torque (`hover_thrusts`); every entry
         equals `hover_command` for a balanced layout."""
-        trim = self.hover_thrusts
-        if np.all(trim == trim[0]):
-            return np.full(len(trim), self.hover_command)
-        return np.sqrt(trim / self.k_f) / self.omega_max
+        if self.balanced:
+            return np.full(self.n_rotors, self.hover_command)
+        return np.sqrt(self.hover_thrusts / self.k_f) / self.omega_max
 
     @property
     def max_thrust(self) -> float:

@@ -103,10 +103,9 @@ def hover_trim(vehicle: VehicleParams) -> np.ndarray | None:
     """Per rotor (the vehicle's order), the action that holds its hover with zero torque, relative to
     an equal share of the weight: T_i/(W/M) − 1 with T_i = `hover_thrusts`; None for a balanced
     layout, where every share is equal and the policy's own zero action is the trim."""
-    thrusts = vehicle.hover_thrusts
-    if np.all(thrusts == thrusts[0]):
+    if vehicle.balanced:
         return None
-    return thrusts / vehicle.hover_thrust - 1.0
+    return vehicle.hover_thrusts / vehicle.hover_thrust - 1.0
 
 
 def vehicle_model(
@@ -116,14 +115,21 @@ def vehicle_model(
     none): the head in the vehicle's rotor order (`permuted_model`), its bias offset by the
     vehicle's hover trim less the one the policy was trained with (`hover_trim`; both are None for
     the square frames a generalist draws, and a policy trained on an unbalanced frame has its trim
-    in its weights already). RetargetError for a policy that sees its past actions (--obs-history):
-    they would hold the offset, which it never saw."""
+    in its weights already). RetargetError for a policy that sees its past actions (--obs-history)
+    on a vehicle that numbers its rotors otherwise, or with an offset: its input would hold them in
+    the vehicle's order, or shifted by what it never saw."""
+    history = int(ckpt.get("ppo_config", {}).get("obs_history", 1))
+    if history > 1 and list(order) != sorted(order):  # its input holds past actions, per rotor
+        raise RetargetError(
+            f"a policy with --obs-history {history} sees its past actions in its own rotor order, and "
+            f"{vehicle.name} numbers its rotors otherwise ({[i + 1 for i in order]}); retarget it only onto a "
+            "vehicle with the same order"
+        )
     model = permuted_model(ckpt, order)
     new, old = hover_trim(vehicle), hover_trim(trained)
     offset = (0.0 if new is None else new) - (0.0 if old is None else old[list(order)])
     if not np.any(offset != 0.0):
         return model, None
-    history = int(ckpt.get("ppo_config", {}).get("obs_history", 1))
     if history > 1:
         raise RetargetError(
             f"a policy with --obs-history {history} sees its past actions, and {vehicle.name}'s hover trim would "

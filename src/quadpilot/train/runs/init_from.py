@@ -75,13 +75,6 @@ def start_from(agent, ckpt: dict, source: str) -> dict:
         order = rotor_permutation(unit_layout(theirs.params), unit_layout(agent.env_cfg.params))
     except RetargetError as e:
         raise UsageError(f"--init-from {source}: {e}") from None
-    history = int(ckpt["ppo_config"].get("obs_history", 1))
-    if history > 1 and list(order) != sorted(order):  # its input holds past actions, per rotor
-        raise UsageError(
-            f"--init-from {source}: a policy with --obs-history {history} sees its past actions in its own rotor "
-            f"order, and this vehicle numbers its rotors otherwise ({[i + 1 for i in order]}); start from it only "
-            "on a vehicle with the same order"
-        )
     try:
         model, _ = vehicle_model(ckpt, order, theirs.params, agent.env_cfg.params)
     except RetargetError as e:
