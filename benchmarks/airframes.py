@@ -120,9 +120,11 @@ def _commit() -> str:
     return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
 
 
-def _digest(path: Path) -> str:
-    """The sha256 of a policy file: which generalist a record belongs to."""
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+def _digest(policy: Path) -> str:
+    """The sha256 of the generalist's policy file (--policy): which generalist a record belongs to."""
+    if not policy.is_file():
+        raise SystemExit(f"airframes: --policy {policy}: no such file; give the generalist's policy.pt")
+    return hashlib.sha256(policy.read_bytes()).hexdigest()
 
 
 def _when(commit: str) -> dict:
@@ -398,8 +400,6 @@ def run_tuned(
     airframe's earlier ones with the policy already there; without them it is trained again (its
     RotorPy rows, of the earlier policy, are dropped)."""
     data, episodes = _flown_json(out, episodes)
-    if not policy.is_file():
-        raise SystemExit(f"airframes: --policy {policy}: no such file; give the generalist's policy.pt")
     digest = _digest(policy)
     commit = _commit()
     with tempfile.TemporaryDirectory() as tmp:

@@ -133,6 +133,8 @@ def test_rerunning_a_subcommand_keeps_what_the_others_wrote(tmp_path, monkeypatc
         airframes.run_tuned(out, ["x500"], general, policies, 1, {"step": airframes.FLIGHTS["step"]})
     with pytest.raises(SystemExit, match="no such file"):
         airframes.run_tuned(out, ["x500"], run_dir / "missing.pt", policies, 1)
+    with pytest.raises(SystemExit, match="no such file"):
+        airframes.run_generalist(out, ["x500"], run_dir / "missing.pt", policies, 1)
     airframes.run_tuned(out, ["x500"], general, policies, 1)  # all again: trained again
     rows = json.loads(out.read_text())["airframes"]["x500"]
     assert rows["rotorpy"] == {"generalist": flown} and "tuned_flights_run" not in rows

@@ -73,9 +73,6 @@ def start_from(agent, ckpt: dict, source: str) -> dict:
         )
     try:
         order = rotor_permutation(unit_layout(theirs.params), unit_layout(agent.env_cfg.params))
-    except RetargetError as e:
-        raise UsageError(f"--init-from {source}: {e}") from None
-    try:
         model, _ = vehicle_model(ckpt, order, theirs.params, agent.env_cfg.params)
     except RetargetError as e:
         raise UsageError(f"--init-from {source}: {e}") from None
