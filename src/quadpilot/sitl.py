@@ -520,6 +520,10 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
             proxy.stop()
         if sim is not None:
             sim.stop()
+    refused = next((log.failsafe for log in logs if (log.failsafe or "").startswith("refusing to arm")), None)
+    if refused is not None:  # nothing was flown: one line, not a summary of nothing
+        print(f"quad-sitl: {refused} (HIL_SENSOR arrives, HIL_STATE_QUATERNION does not)", file=sys.stderr)
+        return 1
     summary = sitl_node.summarise(logs, policy.info.control_period_s, task)
     summary["task"] = task
     if maneuver is not None:

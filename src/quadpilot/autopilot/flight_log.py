@@ -33,6 +33,8 @@ class EpisodeLog:
     replies: int = 0
     """HIL_ACTUATOR_CONTROLS sent in answer to a step, including blind ones before any valid state
     (not logged: nothing to log them against)."""
+    state_lost_steps: int = 0
+    """Steps answered without their state (HIL_SENSOR alone), on the estimate of `autopilot.state_loss`."""
     blind_replies: int = 0
     """Of `replies`, those flown blind (their step's state dropped), logged or not."""
     home: wire.Home | None = None

@@ -93,6 +93,7 @@ from .commander import Commander
 from .flight_log import EpisodeLog
 from .ground_station import NODE_COMPONENT_ID, NODE_SYSTEM_ID, GroundStation, commander_for, commander_summary
 from .setpoint import collective_thrust
+from .state_loss import StateLoss, StateLossConfig
 
 START_MODES = ("air", "landed")
 """`NodeConfig.start`: where a commanded flight starts."""
@@ -168,6 +169,10 @@ class NodeConfig:
     start: str = "air"
     """With `command`: "air", armed and holding where the first valid state is (a simulator that
     starts in flight); "landed", disarmed on the ground until the ground station arms it."""
+
+    state_loss: StateLossConfig = field(default_factory=StateLossConfig)
+    """What the node flies when a step's HIL_SENSOR comes without its state (`autopilot.state_loss`):
+    the policy on an estimate from HIL_SENSOR, then a hold of attitude and height, then a landing."""
 
     def __post_init__(self) -> None:
         check_spin(self.spin_s)
@@ -288,6 +293,9 @@ class Node:
                 log.dropped["oversized_datagram"] += link.oversized_datagrams
             log.mavlink_version = link.version
             log.home = flight.home
+            if flight.loss is not None and flight.loss.latched and log.failsafe is None:
+                # the state-loss landing is a failsafe (never a success), not a crash
+                log.failsafe = "state lost: landed" if flight.landed else "state lost: landing"
             if commander is not None:
                 log.commander = commander_summary(commander, gcs, flight.disarmed_at)
             link.close()
@@ -305,7 +313,7 @@ class Node:
         simulator and the ground station (with a commander, its heartbeat then says disarmed and
         CRITICAL: `Commander.motors_cut`). The episode ends here: re-arming is a new `fly()`,
         never automatic. If the peer is gone, the sends fail and there is nothing more to do."""
-        text = f"failsafe: {reason}, motors off"
+        text = reason if reason.startswith("refusing to arm") else f"failsafe: {reason}, motors off"
         try:
             link.mav.statustext_send(mavlink2.MAV_SEVERITY_CRITICAL, text.encode()[:50])
             link.mav.hil_actuator_controls_send(
@@ -381,6 +389,9 @@ class _Flight:
         self.estimate: np.ndarray | None = None  # ODOMETRY: the estimator's state, if the simulator sends one
         self.estimate_time = -1
         self.last_sensor_time = -1
+        self.loss: StateLoss | None = None  # the state stream is silent: what flies meanwhile
+        self.landed = False  # the state-loss landing touched down: motors off to the end
+        self.unarmed_since: int | None = None  # time_usec of the first HIL_SENSOR while no state ever came
         self.received = 0
         # the policy's clock on simulated time (see the module docstring)
         policy_period = monitor.policy.info.control_period_s
@@ -419,7 +430,10 @@ class _Flight:
         if msg.time_usec <= self.state_time:
             log.dropped["time_backwards" if msg.time_usec < self.state_time else "time_repeated"] += 1
             return
-        if self.state_time >= 0 and msg.time_usec - self.state_time > self.cfg.max_time_jump_s * 1e6:
+        # a jump from the simulator's last step (its last HIL_SENSOR: after a silent state stream, the
+        # last state may be long ago, and the next one is no jump)
+        last = max(self.state_time, self.last_sensor_time)
+        if last >= 0 and msg.time_usec - last > self.cfg.max_time_jump_s * 1e6:
             log.dropped["time_jump"] += 1
             return
         home = self.home
@@ -454,8 +468,12 @@ class _Flight:
         t_us = msg.time_usec
         blind = t_us == self.bad_time and self.bad_time > self.state_time  # its step's state was dropped
         # a step is answered once, and never after a later one
-        if t_us <= self.last_sensor_time or (t_us != self.state_time and not blind):
-            log.dropped["sensor_without_state"] += 1
+        if t_us <= self.last_sensor_time:
+            log.dropped["sensor_out_of_order"] += 1
+            return
+        lost = t_us != self.state_time and not blind  # this step's state never came
+        if lost and state is None:  # no state yet at all: motors off, and no arming without one
+            self._unarmed(msg)
             return
         if self.first_us is None:
             self.first_us = t_us
@@ -463,12 +481,28 @@ class _Flight:
             self.step_us = t_us - self.last_sensor_time
         self.last_sensor_time = t_us
         self.received += 1
+        if lost:
+            self._lost_step(msg)
+        elif self.loss is not None and not self.loss.latched:  # states are back before the landing
+            self._loss_note(t_us, "state back", "policy flying" if self.loss.phase == "policy" else "handing back")
+            self.loss = None
+        loss = self.loss
+        on_estimate = lost and loss.phase == "policy"
         commander = self.commander
         if commander is not None and self.gcs is not None:  # the ground station's commands, before the setpoint
             self._log_texts(self.gcs.serve(t_us * 1e-6), t_us * 1e-6)
         every_step = self.own_observation is not None  # a contract of its own: every step (see policy.Policy)
         tick = not blind and (every_step or self.next_tick_us is None or t_us >= self.next_tick_us - TICK_TOLERANCE_US)
-        if blind and not self.motors_on:
+        if loss is not None and loss.phase != "policy":  # holding, landing or landed: every step
+            s = loss.estimate_state() if lost else self.state_values[:9] + list(wire.gyro_values_from_hil_sensor(msg))
+            cmd = self.held = loss.command(s, t_us)
+            if loss.phase == "landed":
+                if not self.landed:
+                    self.landed = True
+                    self._loss_note(t_us, "landed", loss.changes[-1][2])
+                self.held_armed = self.motors_on = False
+            self.held_source = loss.phase
+        elif blind and not self.motors_on:
             cmd = self.held = IDLE  # motors off stay off: a dropped state is no reason to spin them
             self.held_source = "idle"
         elif blind:
@@ -478,8 +512,11 @@ class _Flight:
             self.held_source = monitor.source
         elif tick:
             # the state flown on, as floats, with the body rates of the gyro
-            s = (self.estimate.tolist() if self.estimate_time == t_us else self.state_values)[:9]
-            s += wire.gyro_values_from_hil_sensor(msg)
+            if on_estimate:  # the state stream is silent: the estimate from HIL_SENSOR
+                s = loss.estimate_state()
+            else:
+                s = (self.estimate.tolist() if self.estimate_time == t_us else self.state_values)[:9]
+                s += wire.gyro_values_from_hil_sensor(msg)
             run = True
             heading = self.heading
             if commander is not None:
@@ -511,7 +548,7 @@ class _Flight:
                     s[VEL], tv = np.subtract(s[VEL], tv).tolist(), None
                 obs = observe(s, tp, tv, heading) if own is None else own(s, tp, tv, heading, t_us)
                 cmd = self.held = monitor.act(obs)
-                self.held_source = monitor.source
+                self.held_source = "estimate" if on_estimate and monitor.source == "policy" else monitor.source
             else:  # disarmed, or idle on the ground: motors off, the policy not run
                 cmd = self.held = IDLE
                 self.held_source = "idle"
@@ -555,6 +592,52 @@ class _Flight:
                 gcs.step(self.ticks, state, t_us, True, sum(log.dropped.values()), self.received)
         if tick:
             self.ticks += 1
+
+    def _unarmed(self, msg) -> None:
+        """A HIL_SENSOR before any valid state: answered once with the motors off and disarmed (a
+        lockstep peer waits for it). After `StateLossConfig.arm_wait_s` of them the node refuses to
+        arm: the flight ends, and says why in one line."""
+        t_us = msg.time_usec
+        self.last_sensor_time = t_us
+        self.last_state_at = time.monotonic()  # the link is alive: this is no silence
+        if self.unarmed_since is None:
+            self.unarmed_since = t_us
+        self.link.send_message(_ACTUATOR_CONTROLS, wire.actuator_controls_args(IDLE, t_us, False, self.cfg.lockstep))
+        self.link.flush()
+        self.log.replies += 1
+        self.log.dropped["sensor_without_state"] += 1
+        wait = self.cfg.state_loss.arm_wait_s
+        if (t_us - self.unarmed_since) * 1e-6 >= wait:
+            self.failsafe = f"refusing to arm: no state in {wait:g} s of sensor data"
+
+    def _lost_step(self, msg) -> None:
+        """A step whose state never came: the estimate goes on (started from the last valid state at
+        the first such step), and the phase with it (`autopilot.state_loss`)."""
+        t_us = msg.time_usec
+        self.last_state_at = time.monotonic()  # sensors arrive: the link is alive, the state is what is lost
+        self.log.state_lost_steps += 1
+        if self.loss is None:
+            self.loss = StateLoss(
+                self.cfg.state_loss,
+                self.monitor.policy.info.vehicle,
+                [*self.state_values[:9], 0.0, 0.0, 0.0],
+                self.state_time,
+                msg,
+                self.step_us * 1e-6,
+            )
+            self._loss_note(t_us, "state lost", "flying on the estimate")
+        before = len(self.loss.changes)
+        phase = self.loss.update(msg)
+        if len(self.loss.changes) > before:
+            if phase == "hold":
+                self.monitor.take_over("state_lost")  # the policy flies again by the usual hand-back
+            self._loss_note(t_us, phase, self.loss.changes[-1][2])
+
+    def _loss_note(self, t_us: int, what: str, why: str) -> None:
+        """A change of what flies while the state is lost: into the log and to the ground station."""
+        self.log.handovers.append((round(t_us * 1e-6, 6), "state-loss", f"{what}: {why}"))
+        if self.gcs is not None:
+            self.gcs.statustext(mavlink2.MAV_SEVERITY_WARNING, f"state loss: {what}"[:50])
 
     def _command(self, s: np.ndarray, t_us: int):
         """One commander step on the state the policy flies on, at simulated time; its messages go to

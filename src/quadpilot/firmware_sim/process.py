@@ -20,6 +20,7 @@ motors are cut, so a stream of bad commands cannot keep the last good one alive.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -28,7 +29,7 @@ import numpy as np
 
 from quadpilot.core import dynamics
 from quadpilot.core.reward import RewardConfig, crashed
-from quadpilot.core.state import PITCH, POS, ROLL, X, Y, Z
+from quadpilot.core.state import PITCH, POS, ROLL, VZ, X, Y, Z
 from quadpilot.link import spin
 from quadpilot.link.transport import Address, Listener, PeerClosed
 
@@ -36,7 +37,7 @@ from .config import SimConfig
 from .faults import FaultPlayer
 from .plant import Plant
 from .protocol import Protocol
-from .records import EpisodeRecord, EpisodeTally, SimStats
+from .records import TOUCHDOWN_MAX_SPEED, TOUCHDOWN_MAX_TILT_DEG, EpisodeRecord, EpisodeTally, SimStats
 from .sensors import Sensors, isa_pressure_hpa, isa_temperature_c
 
 log = logging.getLogger(__name__)
@@ -197,6 +198,9 @@ class Simulator:
             period_jitter_ms=jitter,
             overruns=ep.overruns,
             rate_limited_steps=plant.rate_limited_steps,
+            touchdown=ep.touchdown,
+            max_descent_speed=ep.max_descent_speed,
+            motors_off_airborne_steps=ep.motors_off_airborne_steps,
         )
 
     def _await_heartbeat(self, link, ep: EpisodeTally) -> str | None:
@@ -221,7 +225,13 @@ class Simulator:
     def _advance(self, link, plant: Plant, command: np.ndarray, n: int, rng, ep: EpisodeTally) -> int:
         """Step the plant once, send the next step's messages, then note a crash (after the send:
         the peer computes its answer meanwhile); returns the new step."""
+        airborne = not plant.on_ground
+        tilt = max(abs(float(plant.state[ROLL])), abs(float(plant.state[PITCH])))  # the ground levels it
         plant.step(command)
+        if airborne:
+            ep.max_descent_speed = max(ep.max_descent_speed, -float(plant.state[VZ]), plant.impact_speed)
+            if not np.any(command):
+                ep.motors_off_airborne_steps += 1
         n += 1
         if n == self._impulse_step:
             plant.hit(self.cfg.impulse[0])  # before this step's messages: the peer sees it next
@@ -233,7 +243,15 @@ class Simulator:
                 # The ground holds the drone at z = 0, so `crashed`'s "below ground" never fires
                 # here: a flight started in the air that touches the ground has crashed (the event
                 # z < 0 was before the ground plane).
-                crash = plant.on_ground or crashed_one(plant.state, self._target, self._reward)
+                # A first contact slow and upright is a landing (the node's own, when it has lost its
+                # state); staying on the ground after one is no crash either.
+                if not plant.on_ground:
+                    crash = crashed_one(plant.state, self._target, self._reward)
+                elif ep.touchdown is None and airborne:
+                    ep.touchdown = (n, plant.impact_speed, math.degrees(tilt))
+                    crash = not (plant.impact_speed < TOUCHDOWN_MAX_SPEED and ep.touchdown[2] < TOUCHDOWN_MAX_TILT_DEG)
+                else:
+                    crash = ep.touchdown is None
             else:
                 # A landed start is a commanded flight: it rests on the ground by design and goes
                 # wherever the ground station sends it, so neither the ground nor the flight area

@@ -6,6 +6,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+TOUCHDOWN_MAX_SPEED = 1.0
+"""m/s: an air start's first ground contact slower than this (and upright) is a landing, not a crash."""
+TOUCHDOWN_MAX_TILT_DEG = 30.0
+"""deg: ... and tilted less than this the step before it."""
 END_REASONS = ("peer_closed", "lockstep_timeout", "peer_silent", "max_steps", "stopped")
 
 
@@ -40,6 +44,14 @@ class EpisodeRecord:
     """Realtime: steps that started more than one dt late."""
     rate_limited_steps: int = 0
     """Steps whose body rates the plant had to saturate at `link.wire.MAX_BODY_RATE` (a tumble)."""
+    touchdown: tuple[int, float, float] | None = None
+    """An air start's first ground contact: (step, impact speed m/s, tilt deg the step before, as the
+    ground stands the vehicle level). Below TOUCHDOWN_MAX_SPEED and TOUCHDOWN_MAX_TILT_DEG it is a
+    landing, not a crash. None: it never touched the ground."""
+    max_descent_speed: float = 0.0
+    """m/s, the fastest the vehicle moved down in the air over the episode."""
+    motors_off_airborne_steps: int = 0
+    """Steps flown with every motor commanded off while the vehicle was in the air (a cut in the air)."""
 
     def summary(self) -> str:
         dropped = sum(self.dropped.values())
@@ -90,3 +102,6 @@ class EpisodeTally:
         self.overruns = 0
         self.steps_done = 0
         self.first_crash_step: int | None = None
+        self.touchdown: tuple[int, float, float] | None = None
+        self.max_descent_speed = 0.0
+        self.motors_off_airborne_steps = 0

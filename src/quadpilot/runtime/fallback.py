@@ -271,7 +271,6 @@ class FallbackController:
         err = rot @ obs[_POS]  # world, p − p_target
         vel = rot @ obs[_VEL]  # world
         rates = obs[_RATES]
-        g, dt = self._gravity, self.dt
 
         if self._heading is None:
             # Hold the heading found at hand-over: yaw of the body x axis (ZYX: atan2(R21, R11)).
@@ -282,6 +281,25 @@ class FallbackController:
         v_sp = -self._k_p * err
         if obs.shape[0] == TRACK_LAYOUT.dim:
             v_sp += rot @ obs[_TARGET_VEL]  # feed the target's velocity forward
+        return self._track(rot, vel, rates, v_sp)
+
+    def track_velocity(self, rot: np.ndarray, vel: np.ndarray, rates: np.ndarray, v_sp: np.ndarray) -> np.ndarray:
+        """Rotor commands that fly the velocity set-point `v_sp` (m/s, world ENU): stages 2 to 4 alone,
+        for a caller with no position to hold (`autopilot.state_loss`: height held, or a descent).
+        rot (3, 3) body → world, vel (3,) m/s world, rates (3,) rad/s body FLU. Saturated as in `act`;
+        the hover trim for anything non-finite."""
+        rot, vel, rates = (np.asarray(a, np.float64) for a in (rot, vel, rates))
+        v_sp = np.array(v_sp, np.float64)
+        if not all(np.isfinite(a).all() for a in (rot, vel, rates, v_sp)):
+            return self._hover.copy()
+        if self._heading is None:
+            psi = math.atan2(rot[1, 0], rot[0, 0])
+            self._heading = (math.cos(psi), math.sin(psi))
+        cmd = self._track(rot, vel, rates, v_sp)
+        return cmd if np.isfinite(cmd).all() else self._hover.copy()
+
+    def _track(self, rot: np.ndarray, vel: np.ndarray, rates: np.ndarray, v_sp: np.ndarray) -> np.ndarray:
+        g, dt = self._gravity, self.dt
         v_sp[:2] = _clip_norm(v_sp[:2], self.gains.max_speed_xy)
         v_sp[2] = min(max(v_sp[2], -self.gains.max_speed_z), self.gains.max_speed_z)
 

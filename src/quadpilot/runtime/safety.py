@@ -211,6 +211,14 @@ class SafetyMonitor:
         self.source = "fallback"
         return self._hover.copy()
 
+    def take_over(self, reason: str) -> None:
+        """Another controller flies for now (the node's hold or landing while the state is lost): the
+        fallback is engaged as for bad input, so the policy flies again by the usual hand-back once
+        valid observations have stayed inside the recovery envelope for HAND_BACK_HOLD_S."""
+        self._hand_over(reason, BAD_INPUT)
+        self._inside = 0
+        self.source = "fallback"
+
     def _hand_over(self, reason: str, cause: str, latch: bool = False) -> None:
         self.events[reason] += 1
         if not self._engaged:
