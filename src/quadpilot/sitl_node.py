@@ -81,8 +81,9 @@ LOCKSTEP_COMMANDED_WARNING = (
     "(COM_DL_LOSS_T, COM_DISARM_PRFLT) run on, goes faster than a ground station's; add --realtime for "
     "MAVSDK, QGroundControl or MAVProxy"
 )
-NOT_FLOWN_BY_FALLBACK = ("policy", "idle")
-"""Step sources that are not the fallback: the policy, and motors off while disarmed or idle."""
+NOT_FLOWN_BY_FALLBACK = ("policy", "estimate", "idle")
+"""Step sources that are not the fallback: the policy (on the state, or on the node's estimate while
+the state is lost: `autopilot.state_loss`), and motors off while disarmed or idle."""
 
 
 def commanded(args) -> bool:
@@ -528,6 +529,7 @@ def summarise(logs, period: float, task: str = "hover") -> dict:
         "control_latency_p50_us": float(np.percentile(lat, 50)) if lat.size else math.nan,
         "control_latency_p99_us": float(np.percentile(lat, 99)) if lat.size else math.nan,
         "failsafe_events": sum(1 for log in logs if log.failsafe),
+        "state_lost_steps": int(sum(log.state_lost_steps for log in logs)),
         "fallback_steps": int(fallback),
         "hand_overs": sum(c["hand_overs"] for c in changes),
         "hand_backs": sum(c["hand_backs"] for c in changes),
@@ -570,6 +572,12 @@ def print_summary(s: dict, policy: Path) -> None:
         f"  failsafes {s['failsafe_events']}, fallback steps {s['fallback_steps']} (hand-overs "
         f"{s['hand_overs']}, hand-backs {s['hand_backs']}), packets dropped: {dropped}"
     )
+    if s.get("state_lost_steps"):
+        landed = sum(1 for e in s["per_episode"] if e.get("failsafe") == "state lost: landed")
+        print(
+            f"  state lost              {s['state_lost_steps']:,} steps flown on the node's estimate from HIL_SENSOR"
+            + (f"; landed in {landed} of {s['episodes']} episodes" if landed else "")
+        )
     if "link_impair" in s:
         print(impair_line(s["link_impair"]))
     for c in s.get("commanded", []):

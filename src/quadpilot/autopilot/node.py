@@ -37,7 +37,13 @@ the node waits for the next step as long as the simulator holds the TCP link ope
 connection still ends the flight at once); over UDP, which has no connection to lose, up to
 `UDP_LOCKSTEP_SILENCE_S`. Valid states that stop while bad ones keep coming are still a failsafe:
 after `link_timeout_s` of simulated time ("no valid state").
-Timestamps that go backwards, repeat or jump are dropped and counted. Motor commands go to the
+Timestamps that go backwards, repeat or jump are dropped and counted.
+
+A step whose HIL_SENSOR comes without its state is still answered: the node flies on an estimate of
+its own from HIL_SENSOR, then holds attitude and height, then lands (`autopilot.state_loss`), and a
+HIL_SENSOR is proof enough that the link is alive (the real-time link-loss timer restarts on it).
+Before any valid state has arrived such steps are answered with the motors off, disarmed, and after
+`StateLossConfig.arm_wait_s` the node refuses to arm ("refusing to arm: ...") Motor commands go to the
 simulator's address only; optional MAVLink 2 signing (`signing_key`).
 
 Nothing that arrives can end the loop. A state that cannot be a state (`link.wire.BadState`:
