@@ -121,6 +121,21 @@ def lstm_files(tmp_path_factory):
     return pt, d / "policy.onnx", meta
 
 
+@pytest.mark.parametrize("fmt", [[], ["--format", "c"], ["--format", "px4-raptor"]])
+def test_cli_given_a_policy_tar_says_what_it_is_in_one_line(tmp_path, capsys, fmt):
+    shipped = Path(__file__).parents[2] / "models" / "hover_px4_raptor_sih" / "policy.tar"
+    renamed = tmp_path / "my policy.pt"  # what the file is, not what it is called
+    renamed.write_bytes(shipped.read_bytes())
+    for tar in (shipped, renamed):
+        assert main([str(tar), *fmt, "-o", str(tmp_path / "out")]) == 2
+        out, err = capsys.readouterr()
+        assert out == "" and len(err.strip().splitlines()) == 1, err
+        assert "is a PX4 mc_raptor policy.tar, already exported; fly it with quad-sitl" in err
+        assert "Traceback" not in err and "legacy" not in err
+    assert f"quad-sitl '{renamed}'" in err  # quoted as a shell reads it
+    assert not (tmp_path / "out").exists()
+
+
 def test_lstm_exports_with_explicit_state(lstm_files):
     _, path, meta = lstm_files
     onnx.checker.check_model(onnx.load(str(path)), full_check=True)

@@ -200,4 +200,6 @@ DAMAGE = {
     ),
     "truncated in the example output": lambda d: d[: data_offset(d, "example/output/data") + 4_000],
     "a weight's low-order byte changed": lambda d: flip_low_byte(d, "actor/layers/0/weights/parameters/data", 3),
+    "an empty file": lambda d: b"",
+    "shorter than a tar header": lambda d: d[:100],
 }

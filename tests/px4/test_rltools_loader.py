@@ -106,6 +106,8 @@ REFUSED_BY_BOTH = {
     "NaN in the first example output steps": (-6, "output is nan"),
     "truncated in the weights": (-6, "Failed to read metadata entry"),
     "truncated in the example input": (1, "Checkpoint test failed with diff"),  # it compares garbage
+    "an empty file": (-6, "Failed to read metadata entry"),
+    "shorter than a tar header": (-6, "Failed to read metadata entry"),
 }
 MISSED_BY_MC_RAPTOR = [
     "an output bias moved by 2e-5",  # mean over 40 values 5e-6, under its 1e-5

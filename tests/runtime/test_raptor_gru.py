@@ -230,18 +230,46 @@ def test_a_plain_weight_dict_from_any_reader_makes_the_same_policy(checkpoint):
 # --- the generated C (ccode.gru, runtime.cgru) ----------------------------------------------
 
 
-def _c_step_or_skip(weights):
-    import os
+NO_COMPILER = "no C compiler on PATH (nor $CC); install one: apt-get install gcc"
 
-    from quadpilot.runtime.cbackend import CCompilerError
+
+def _c_step_or_skip(weights):
+    """The compiled step. Only a missing compiler skips, and only outside CI (env CI unset); a
+    compiler that fails on the generated C fails the test (CCompilerError propagates)."""
+    from quadpilot.runtime.cbackend import find_compiler
     from quadpilot.runtime.cgru import CGruStep
 
-    try:
-        return CGruStep(weights)
-    except CCompilerError as e:
+    if find_compiler() is None:
         if os.environ.get("CI"):
-            pytest.fail(f"{e} (CI installs gcc)")
-        pytest.skip(f"{e}")
+            pytest.fail(f"{NO_COMPILER} (CI must run this test)")
+        pytest.skip(NO_COMPILER)
+    return CGruStep(weights)
+
+
+def test_a_failed_compile_of_the_generated_c_fails_and_only_a_missing_compiler_skips(monkeypatch, tmp_path):
+    from pathlib import Path
+
+    from quadpilot.runtime.cbackend import CCompilerError
+    from quadpilot.runtime.rltools_tar import read_policy_tar
+
+    weights = read_policy_tar(Path(__file__).parents[2] / "models/hover_px4_raptor_sih/policy.tar").weights
+    monkeypatch.setenv("QUADPILOT_CACHE_DIR", str(tmp_path))  # nothing cached to load instead
+    monkeypatch.delenv("CI", raising=False)
+    monkeypatch.setenv("CC", "false")  # a compiler that exits 1 on anything
+    try:
+        _c_step_or_skip(weights)
+    except pytest.skip.Exception as e:  # the test would be reported skipped, not failed
+        pytest.fail(f"a failed compile of the generated C was turned into a skip: {e}")
+    except CCompilerError as e:
+        assert "compiler failed" in str(e)
+    else:
+        pytest.fail("`false` compiled the generated C")
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    with pytest.raises(pytest.skip.Exception, match="apt-get install gcc"):
+        _c_step_or_skip(weights)
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match="CI must run this test"):
+        _c_step_or_skip(weights)
 
 
 def test_the_c_step_gives_the_numpy_steps_actions_and_states():

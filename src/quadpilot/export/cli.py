@@ -20,11 +20,13 @@ once (mps2-an386 for the M4F, mps2-an500 for the M7) and the result printed.
 
 Exit codes: 0 written and parity within tolerance; 1 the checkpoint cannot be used (malformed,
 truncated, not a quadpilot checkpoint), or the export or its parity check failed; 2 a bad flag
-(including a checkpoint path that does not exist or an output that cannot be written).
+(including a checkpoint path that does not exist, a policy.tar already exported, or an output that
+cannot be written).
 """
 
 from __future__ import annotations
 
+import shlex
 import sys
 from pathlib import Path
 
@@ -53,6 +55,13 @@ def _check_args(args) -> Path:
     ckpt = args.checkpoint
     if (why := input_path_problem(ckpt, "policy.pt (or checkpoint.pt) written by quad-train")) is not None:
         raise _BadFlag(why)
+    from quadpilot.runtime.rltools_tar import is_policy_tar
+
+    if is_policy_tar(ckpt):
+        raise _BadFlag(
+            f"{ckpt} is a PX4 mc_raptor policy.tar, already exported; fly it with quad-sitl {shlex.quote(str(ckpt))} "
+            "(quad-export reads the policy.pt quad-train writes)"
+        )
     if args.vehicle is not None:
         if args.format != "onnx":
             raise _BadFlag(f"--vehicle needs --format onnx (then export the .pt it writes with --format {args.format})")

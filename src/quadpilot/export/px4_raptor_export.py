@@ -4,9 +4,12 @@ trained with `quad-train --contract px4-raptor`.
 Writes, beside each other (OUT defaults to the checkpoint's folder):
 - policy.tar: RLtools' checkpoint layout of mc_raptor's policy type (`runtime.rltools_tar`): the
   weights, and the example mc_raptor's `Raptor::test_policy` replays, 2 sequences of 500 steps: the
-  contract's observations of two flights of this policy in our simulator from seeded starts (run by
-  the runtime's NumPy step, so that the bytes do not depend on torch), and the runtime's outputs on
-  them. The same policy gives the same bytes.
+  contract's observations of two flights of this policy in our simulator from seeded starts (the
+  plant in float64, the observations rounded to multiples of 2^-12 as the policy flies,
+  `EXAMPLE_GRID`), and the policy's outputs on them, the policy computed by
+  `runtime.gru.PortableStep` (float64 in one fixed order, no BLAS or libm, rounded to float32), so
+  that the bytes depend neither on torch nor on the CPU's BLAS kernels or SIMD level. The same
+  policy gives the same bytes on any machine.
 - policy.tar.sha256 (`sha256sum -c` reads it): to compare with the file after the upload.
 - vehicle.toml: the vehicle it was trained for, which quad-sitl flies it on unless --vehicle says
   otherwise (policy.tar names no airframe).
@@ -37,6 +40,13 @@ from quadpilot.train.raptor_distill import StudentCheckpointError, fly, load_stu
 
 EXAMPLE_SEED = 2025
 """Seed of the two flights the example is taken from."""
+EXAMPLE_GRID = 2.0**-12
+"""The example flights' observations are rounded to multiples of this before the policy sees them.
+The flights' plant runs in float64 (training's float32 plant takes NumPy's float32 sin and cos,
+whose last bits follow the CPU's SIMD level), and NumPy's float64 functions may still differ in a
+last bit between machines; on this grid such a difference changes an observation only when a
+value lies within it of a rounding boundary (a chance of some 1e-12 each). The policy step itself
+(`gru.PortableStep`) is the same everywhere, so the flights and the file are."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,10 +66,19 @@ def checkpoint_name(ckpt: dict) -> str:
 
 
 def example(weights: dict, cfg: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(input (500, 2, 22), output (500, 2, 4)): two flights of the policy, and its outputs on them."""
-    step = gru.GruStep(weights)
-    cfg = dataclasses.replace(cfg, episode_steps=rltools_tar.EXAMPLE_STEPS)
-    xs = fly(numpy_policy(step), cfg, rltools_tar.EXAMPLE_BATCH, np.random.default_rng(EXAMPLE_SEED))["obs"]
+    """(input (500, 2, 22), output (500, 2, 4)): two flights of the policy, and its outputs on them,
+    the policy computed by `gru.PortableStep` (no BLAS: the same bits on any machine)."""
+    step = gru.PortableStep(weights)
+    policy = numpy_policy(step)
+
+    def on_grid(x: np.ndarray, h):
+        # x is the flight's row of observations (fly's xs[t]): rounded in place, so that the example
+        # holds what the policy saw; every operation here is exact
+        np.multiply(np.rint(x * np.float32(1 / EXAMPLE_GRID)), np.float32(EXAMPLE_GRID), out=x)
+        return policy(x, h)
+
+    cfg = dataclasses.replace(cfg, episode_steps=rltools_tar.EXAMPLE_STEPS, dtype="float64")
+    xs = fly(on_grid, cfg, rltools_tar.EXAMPLE_BATCH, np.random.default_rng(EXAMPLE_SEED))["obs"]
     return xs, gru.sequences(step, xs)
 
 

@@ -123,6 +123,66 @@ class GruStep:
         return a, new
 
 
+# exp by Cody and Waite's reduction and a Taylor polynomial, IEEE-754 double operations alone (no
+# libm, no SIMD function, no fused multiply-add): the same bits on any machine
+_LN2_HI = 6.93147180369123816490e-01  # ln 2 in its 32 high bits: k * _LN2_HI is exact for |k| < 2^20
+_LN2_LO = 1.90821492927058770002e-10
+_EXP_TAYLOR = [1.0 / math.factorial(i) for i in range(14, -1, -1)]  # |r| <= ln2/2: error below 1e-17
+
+
+def _portable_exp(x: np.ndarray) -> np.ndarray:
+    """e^x in float64 for -700 < x < 700 (the caller keeps it there), elementwise +, -, * only."""
+    k = np.rint(x * 1.4426950408889634)  # 1 / ln 2
+    r = (x - k * _LN2_HI) - k * _LN2_LO
+    p = np.full_like(r, _EXP_TAYLOR[0])
+    for c in _EXP_TAYLOR[1:]:
+        p = p * r + c
+    return np.ldexp(p, k.astype(np.int64))
+
+
+class PortableStep:
+    """`GruStep`'s equations computed so that the result is the same to the bit on every machine:
+    in float64, every product and sum an elementwise NumPy operation in one fixed order (a matrix
+    row's terms added left to right, no BLAS, whose kernels order and fuse them by CPU), exp from
+    `_portable_exp` (no libm or SIMD function), and the action and state rounded to float32. It is
+    the reference the stored example of a policy.tar is computed with, so the file's bytes do not
+    depend on the machine that wrote it; within 1e-6 of `GruStep` (float32, BLAS)."""
+
+    def __init__(self, weights: dict) -> None:
+        w = check_weights(weights)
+        self.initial_state = w["layers/1/initial_hidden_state"]
+        w64 = {k: v.astype(np.float64) for k, v in w.items()}
+        # columns as contiguous rows: W·v = sum over j of W[:, j] * v[j], in order j = 0, 1, ...
+        self._cols = {
+            k: np.ascontiguousarray(w64[k].T)
+            for k in ("layers/0/weights", "layers/1/weights_input", "layers/1/weights_hidden", "layers/2/weights")
+        }
+        self._b = {
+            k: w64[k] for k in ("layers/0/biases", "layers/1/biases_input", "layers/1/biases_hidden", "layers/2/biases")
+        }
+
+    def _affine(self, weights: str, biases: str, v: np.ndarray) -> np.ndarray:
+        acc = self._b[biases].copy()
+        for col, vj in zip(self._cols[weights], v, strict=True):
+            acc = acc + col * vj
+        return acc
+
+    def __call__(self, x: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x64 = np.asarray(x, np.float32).astype(np.float64)
+        h64 = np.asarray(h, np.float32).astype(np.float64)
+        y = np.maximum(self._affine("layers/0/weights", "layers/0/biases", x64), 0.0)
+        gi = self._affine("layers/1/weights_input", "layers/1/biases_input", y)
+        gh = self._affine("layers/1/weights_hidden", "layers/1/biases_hidden", h64)
+        rz = 1.0 / (1.0 + _portable_exp(-np.clip(gi[: 2 * HIDDEN] + gh[: 2 * HIDDEN], -80.0, 80.0)))
+        r, z = rz[:HIDDEN], rz[HIDDEN:]
+        v = gi[2 * HIDDEN :] + r * gh[2 * HIDDEN :]
+        t = _portable_exp(-2.0 * np.minimum(np.abs(v), 40.0))
+        n = np.where(v < 0.0, -1.0, 1.0) * ((1.0 - t) / (1.0 + t))  # tanh
+        new = n + z * (h64 - n)
+        a = self._affine("layers/2/weights", "layers/2/biases", new)
+        return a.astype(np.float32), new.astype(np.float32)
+
+
 def gru_onnx(weights: dict):
     """The step as an ONNX model (opset 17): inputs obs (1, 22) and h_in (1, 16), outputs action
     (1, 4) and h_out (1, 16); Gemm, Relu, ONNX's GRU (linear_before_reset = 1, gates reordered from

@@ -235,6 +235,20 @@ def write_policy_tar_bytes(path: str | Path, data: bytes) -> str:
 # --- reading (untrusted) ---------------------------------------------------------------------------
 
 
+def is_policy_tar(path: str | Path) -> bool:
+    """Whether the file starts as an RLtools checkpoint does (a ustar header of `actor/meta`): what a
+    program that reads other files can tell its user in one line. Reads one block; checks nothing
+    else (`read_policy_tar` does)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(tarfile.BLOCKSIZE)
+    except OSError:
+        return False
+    return (
+        len(head) == tarfile.BLOCKSIZE and head[257:262] == b"ustar" and head[:100].rstrip(b"\0") == ACTOR_META.encode()
+    )
+
+
 @dataclass(frozen=True)
 class PolicyTar:
     """A policy.tar that passed every check."""

@@ -95,6 +95,13 @@ struct Loaded {
     FILE* f = nullptr;
     TI input_offset = 0, output_offset = 0;
     char checkpoint_name[100] = "n/a";
+    // The file's bytes for RLtools' buffer reader: never a null pointer. An empty vector's data() may
+    // be null, and 2.2.1's reader walks from `data` while `ptr <= data + length - 512`: for a real
+    // buffer shorter than a block that bound lies below it (nothing read, the entry not found:
+    // RLtools' refusal), for a null one it wraps to the top of memory and the reader reads address 0
+    // (a segfault of the harness, which mc_raptor's FILE* reader never sees).
+    char* data() { static char none[1] = {0}; return bytes.empty() ? none : bytes.data(); }
+    const char* data() const { static const char none[1] = {0}; return bytes.empty() ? none : bytes.data(); }
 };
 
 // Raptor::init: load the actor, read the checkpoint name, find the example
@@ -105,7 +112,7 @@ static bool load_policy(DEVICE& device, const char* path, POLICY& policy, Loaded
     long size = ftell(loaded.f);
     rewind(loaded.f);
     loaded.bytes.resize(size > 0 ? size : 0);
-    if (size > 0 && fread(loaded.bytes.data(), 1, size, loaded.f) != (size_t)size) { printf("cannot read %s\n", path); return false; }
+    if (size > 0 && fread(loaded.data(), 1, size, loaded.f) != (size_t)size) { printf("cannot read %s\n", path); return false; }
     constexpr TI METADATA_BUFFER_SIZE = 256;
     char metadata_buffer[METADATA_BUFFER_SIZE] = {0};
     TI read_size = 0;
@@ -121,12 +128,12 @@ static bool load_policy(DEVICE& device, const char* path, POLICY& policy, Loaded
 #else
     using SPEC = rlt::persist::backends::tar::ReaderGroupSpecification<TI>;
     rlt::persist::backends::tar::ReaderGroup<SPEC> reader_group;
-    reader_group.data = loaded.bytes.data();
+    reader_group.data = loaded.data();
     reader_group.size = loaded.bytes.size();
     auto actor_group = rlt::get_group(device, reader_group, "actor");
     rlt::load(device, policy, actor_group);  // 2.2.1: void, a failure aborts
     successfully_loaded = true;
-    rlt::persist::backends::tar::get(device, loaded.bytes.data(), (TI)loaded.bytes.size(), "actor/meta", metadata_buffer, METADATA_BUFFER_SIZE, read_size);
+    rlt::persist::backends::tar::get(device, loaded.data(), (TI)loaded.bytes.size(), "actor/meta", metadata_buffer, METADATA_BUFFER_SIZE, read_size);
 #endif
     TI position = 0, len = 0;
     if (!rlt::persist::backends::tar::seek_in_metadata(device, metadata_buffer, METADATA_BUFFER_SIZE, "checkpoint_name", position, len)) {
@@ -143,10 +150,10 @@ static bool load_policy(DEVICE& device, const char* path, POLICY& policy, Loaded
 #else
     char* input_ptr = nullptr;
     char* output_ptr = nullptr;
-    rlt::persist::backends::tar::get(device, loaded.bytes.data(), (TI)loaded.bytes.size(), "example/input/data", input_ptr, input_size);
-    rlt::persist::backends::tar::get(device, loaded.bytes.data(), (TI)loaded.bytes.size(), "example/output/data", output_ptr, output_size);
-    loaded.input_offset = input_ptr ? (TI)(input_ptr - loaded.bytes.data()) : 0;
-    loaded.output_offset = output_ptr ? (TI)(output_ptr - loaded.bytes.data()) : 0;
+    rlt::persist::backends::tar::get(device, loaded.data(), (TI)loaded.bytes.size(), "example/input/data", input_ptr, input_size);
+    rlt::persist::backends::tar::get(device, loaded.data(), (TI)loaded.bytes.size(), "example/output/data", output_ptr, output_size);
+    loaded.input_offset = input_ptr ? (TI)(input_ptr - loaded.data()) : 0;
+    loaded.output_offset = output_ptr ? (TI)(output_ptr - loaded.data()) : 0;
 #endif
     printf("Checkpoint name: %s\n", loaded.checkpoint_name);
     return true;
@@ -246,12 +253,12 @@ static int save(DEVICE& device, POLICY& policy, const Loaded& loaded, const char
 #ifdef QP_RLTOOLS_POSIX
     using SPEC = rlt::persist::backends::tar::ReaderGroupSpecification<TI>;
     rlt::persist::backends::tar::ReaderGroup<SPEC> reader_group;
-    reader_group.data.data = loaded.bytes.data();
+    reader_group.data.data = loaded.data();
     reader_group.data.size = loaded.bytes.size();
 #else
     using SPEC = rlt::persist::backends::tar::ReaderGroupSpecification<TI>;
     rlt::persist::backends::tar::ReaderGroup<SPEC> reader_group;
-    reader_group.data = loaded.bytes.data();
+    reader_group.data = loaded.data();
     reader_group.size = loaded.bytes.size();
 #endif
     auto example_read = rlt::get_group(device, reader_group, "example");
