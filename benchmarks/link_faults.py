@@ -106,6 +106,7 @@ def _one(kind: str, name: str, spec: str | None, rate: int, episodes: int, seed:
         steps=s["steps"],
         monitor_events=s["monitor_events"],
         packets_dropped=s["packets_dropped"],
+        state_lost_steps=s.get("state_lost_steps", 0),
         control_latency_p99_us=s["control_latency_p99_us"],
     )
     if "link_impair" in s:

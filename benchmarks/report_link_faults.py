@@ -32,6 +32,8 @@ def _did(r: dict) -> str:
         parts.append(f"failsafe in {r['failsafes']}/{r['episodes']} ({', '.join(r['failsafe_reasons'])})")
     if r["episodes_with_fallback"]:
         parts.append(f"fallback flew in {r['episodes_with_fallback']}/{r['episodes']}")
+    if r.get("state_lost_steps"):
+        parts.append(f"{r['state_lost_steps']:,} steps without a state flown on the node's estimate")
     blind = r["monitor_events"].get("blind_steps", 0)
     if blind:
         parts.append(f"{blind} blind steps")
