@@ -137,7 +137,8 @@ def machine() -> dict:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--episodes", type=int, default=5, help="episodes per condition and rate (default 5)")
-    p.add_argument("--goal-episodes", type=int, default=20, help=f"episodes of {', '.join(GOALS)} (default 20)")
+    goals = ", ".join(GOALS).replace("%", "%%")  # argparse formats help with %: "loss 5%" would break it
+    p.add_argument("--goal-episodes", type=int, default=20, help=f"episodes of {goals} (default 20)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rates", type=int, nargs="+", default=list(RATES_HZ))
     p.add_argument("--only", nargs="+", help="only these conditions (names as in the tables)")

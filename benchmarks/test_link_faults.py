@@ -5,6 +5,9 @@ on purpose (its docstring has the command)."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import link_faults
 import report_link_faults
@@ -29,3 +32,11 @@ def test_link_faults_smoke(tmp_path, capsys):
     assert report_link_faults.main([str(out)]) == 0
     text = capsys.readouterr().out
     assert "| loss 5%: `loss=5%` | 100 | 1/1 | 0 |" in text and "failsafe in 1/1 (state stream silent)" in text
+
+
+def test_link_faults_help_exits_0():
+    # a goal's name holds a % ("loss 5%"), which argparse's help formatting would read as a format
+    script = Path(link_faults.__file__)
+    proc = subprocess.run([sys.executable, str(script), "--help"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    assert "episodes of loss 5%, delay 20 ms" in proc.stdout

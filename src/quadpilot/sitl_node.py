@@ -81,6 +81,10 @@ LOCKSTEP_COMMANDED_WARNING = (
     "(COM_DL_LOSS_T, COM_DISARM_PRFLT) run on, goes faster than a ground station's; add --realtime for "
     "MAVSDK, QGroundControl or MAVProxy"
 )
+LINK_IMPAIR_LOCKSTEP = (
+    "--link-impair needs --realtime: in lockstep each side waits for the other's every frame, so a frame lost, "
+    "held back or sent twice stalls or desynchronises both sides; add --realtime"
+)
 NOT_FLOWN_BY_FALLBACK = ("policy", "estimate", "idle")
 """Step sources that are not the fallback: the policy (on the state, or on the node's estimate while
 the state is lost: `autopilot.state_loss`), and motors off while disarmed or idle."""
@@ -156,13 +160,6 @@ def start_impair(args, address: str):
     imp = args.link_impair
     if imp.seed is None:
         imp = dataclasses.replace(imp, seed=getattr(args, "seed", 0))
-    lost = imp.loss > 0 or imp.burst > 0
-    if lost and getattr(args, "lockstep", False):
-        print(
-            "quad-sitl: warning: --link-impair with loss in lockstep: a lost frame stalls both sides until a "
-            "timeout ends the flight; add --realtime",
-            file=sys.stderr,
-        )
     proxy = Proxy(address, imp)
     return proxy, str(proxy.start())
 
@@ -194,7 +191,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--link-impair",
         type=impair_type,
         metavar="SPEC",
-        help="Relay the node's link through an impairment proxy on loopback: whole MAVLink frames lost, delayed, "
+        help="With --realtime, relay the node's link through an impairment proxy on loopback: whole MAVLink frames "
+        "lost, delayed, "
         "duplicated, reordered, e.g. loss=5%%,delay=20ms,jitter=5ms,reorder=1%%,duplicate=1%%,burst=1%%,burst-len=5,"
         "seed=N (default seed: --seed); see quadpilot.link.impair",
     )
@@ -236,6 +234,8 @@ def misused(args) -> str | None:
         return "--min-success: a commanded flight has no success criterion of its own; read its --json"
     if args.link_impair is not None and (why := _not_loopback(args.connect if args.node_only else args.listen)):
         return why
+    if args.link_impair is not None and args.lockstep:
+        return LINK_IMPAIR_LOCKSTEP
     if not args.node_only:
         given = [f for f in FLAGS if getattr(args, f[2:]) is not None]
         return f"{', '.join(given)}: for --node-only" if given else None

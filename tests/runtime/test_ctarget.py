@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
+import time
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,8 @@ from quadpilot.runtime.cbackend import find_compiler
 MODELS = Path(__file__).parents[2] / "models"
 TOLERANCE = 1e-5
 RANDOM_OBS, FLIGHT_STEPS = 1_000, 300
+HUNG_TIMEOUT_S = 3.0
+"""s: many times a boot of the hover image (golden vectors alone), short enough for a test."""
 CASES = [(m, t) for m in ("hover", "hover_lstm") for t in ("cortex-m4f", "cortex-m7")]
 
 
@@ -119,10 +122,26 @@ def test_truncated_input_is_refused(built):
     assert ctarget.run_image(image, data[:-5]).status == charness.EXIT_INPUT
 
 
-def test_a_hung_image_is_killed_at_the_timeout(built):
-    image, _, obs, _, _ = built("hover", "cortex-m4f")
-    with pytest.raises(ctarget.CrossToolError, match="did not exit within"):
-        ctarget.run_image(image, ctarget.encode_inputs(np.repeat(obs, 200, axis=0)), timeout=0.05)
+HANG = 'for (;;) __asm__ volatile("nop"); /* hung: never reaches main or a semihosting exit */'
+
+
+def test_a_hung_image_is_killed_at_the_timeout(built, tmp_path, monkeypatch):
+    """An image that really hangs (its reset handler spins before main, so no semihosting exit ever
+    comes) is killed at the timeout; the same image without the loop boots and exits well within it,
+    so the timeout is the hang's, not QEMU's start-up."""
+    image, _, _, _, _ = built("hover", "cortex-m4f")
+    assert ctarget.run_image(image, timeout=HUNG_TIMEOUT_S).status == 0
+    onnx_model, info = read_model(MODELS / "hover" / "policy.onnx")
+    code = cgen.generate(info, initializer_arrays(onnx_model))
+    source, exit_line = charness.harness_source, "qp_exit((uint32_t)main());"
+    assert source(info, code.network).count(exit_line) == 1
+    monkeypatch.setattr(charness, "harness_source", lambda *a, **kw: source(*a, **kw).replace(exit_line, HANG))
+    hung = ctarget.build_image(code, info, tmp_path, "cortex-m4f")
+    assert HANG in (tmp_path / charness.HARNESS_NAME).read_text()
+    t0 = time.monotonic()
+    with pytest.raises(ctarget.CrossToolError, match=f"did not exit within {HUNG_TIMEOUT_S:g} s"):
+        ctarget.run_image(hung, timeout=HUNG_TIMEOUT_S)
+    assert time.monotonic() - t0 >= HUNG_TIMEOUT_S
 
 
 @pytest.mark.parametrize("model,target", CASES)

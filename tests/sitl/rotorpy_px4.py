@@ -2,7 +2,7 @@
 10 ms wait for the autopilot's answer must not share a GIL with anything):
 
     python rotorpy_px4.py PORT RATE_HZ STEPS OUT.json [--mavlink 1|2] [--seed N] [--vehicle sih|hummingbird]
-                          [--vehicle-file FILE.toml] [--wind E,N,U] [--gust M/S] [--impulse DV@T]
+                          [--vehicle-file FILE.toml] [--wind E,N,U] [--gust M/S] [--impulse DV@T] [--lockstep]
 
 `rotorpy.vehicles.px4_multirotor.PX4Multirotor` with RotorPy's PX4 SIH quad-X parameters
 (`px4_sihsim_quadx_params`, PX4's 10040_sihsim_quadx airframe) or its AscTec Hummingbird
@@ -19,14 +19,20 @@ quad-sitl's --gust gives its gusts) at `GUST_HZ`. (RotorPy's `DrydenGust`, stepp
 these heights, moves the wind by millimetres per second over a flight of seconds: no gust.)
 `--impulse DV@T`: at T s the velocity jumps by DV m/s east (world x), a hit.
 
+`--lockstep`: each step waits for its answer (up to `LOCKSTEP_GUARD_S`, a hang guard) instead of
+RotorPy's 10 ms, as PX4's lockstep simulators wait for the autopilot: the host's load then cannot make
+a step fly on zero motors or on the step before's answer, so every step flies on its own answer, and
+a step that does not is the node's fault. Without it, RotorPy waits as its users run it (what
+benchmarks/rotorpy_flights.py measures).
+
 What it measures, without touching RotorPy's code path: the connection's `recv_match` is wrapped to
-record what RotorPy's step got back and how long it waited. OUT.json holds per step the time_usec
-RotorPy stamped the step's messages with, the ground truth after the step (RotorPy's world ENU,
-body FLU: position, velocity, quaternion x, y, z, w, body rates, rotor speeds, the wind it flew), the reply's
-time_usec (None: no reply within the 10 ms, the step flew on zero motors), the wait, and when the
-step's HIL_SENSOR left (time.perf_counter(), the host's CLOCK_MONOTONIC on Linux: the node's --trace
-`host_time_s` is on the same clock); then how many HIL_ACTUATOR_CONTROLS were still queued after the
-last step (a second reply to some step).
+record what RotorPy's step got back and how long it waited (and, with --lockstep, to wait longer).
+OUT.json holds per step the time_usec RotorPy stamped the step's messages with, the ground truth
+after the step (RotorPy's world ENU, body FLU: position, velocity, quaternion x, y, z, w, body
+rates, rotor speeds, the wind it flew), the reply's time_usec (None: no reply within the wait, the
+step flew on zero motors), the wait, and when the step's HIL_SENSOR left (time.perf_counter(), the
+host's CLOCK_MONOTONIC on Linux: the node's --trace `host_time_s` is on the same clock); then how
+many HIL_ACTUATOR_CONTROLS were still queued after the last step (a second reply to some step).
 
 `--mavlink 2` sets MAVLINK20 before pymavlink is imported: RotorPy's connection then speaks MAVLink 2
 (pymavlink's mavutil picks its dialect at import; without it, MAVLink 1 until a MAVLink 2 byte
@@ -50,6 +56,7 @@ args.add_argument("--vehicle-file", help="a vehicle file, flown with RotorPy's d
 args.add_argument("--wind", default="0,0,0", help="mean wind, m/s, world ENU: E,N,U")
 args.add_argument("--gust", type=float, default=0.0, help="gusts' standard deviation per axis, m/s")
 args.add_argument("--impulse", help="DV@T: at T s the velocity jumps by DV m/s east")
+args.add_argument("--lockstep", action="store_true", help="each step waits for its answer (not RotorPy's 10 ms)")
 args = args.parse_args()
 if args.mavlink == 2:
     os.environ["MAVLINK20"] = "1"
@@ -82,9 +89,13 @@ START = {
 vehicle = PX4Multirotor(quad_params, initial_state=START, mavlink_url=f"tcpin:127.0.0.1:{args.port}")
 got: dict = {}
 recv_match = vehicle.conn.recv_match
+LOCKSTEP_GUARD_S = 30.0
+"""s, --lockstep: the longest a step waits for its answer (a node that died), not a timing bound."""
 
 
 def watched_recv_match(*a, **kw):
+    if args.lockstep:  # RotorPy's step asks with timeout=0.01
+        kw["timeout"] = LOCKSTEP_GUARD_S
     t0 = time.perf_counter()  # the step's HIL_SENSOR has just been sent
     msg = recv_match(*a, **kw)
     got["wait_s"], got["msg"], got["sent_s"] = time.perf_counter() - t0, msg, t0
@@ -136,4 +147,5 @@ extra = 0
 while recv_match(type="HIL_ACTUATOR_CONTROLS", blocking=False) is not None:
     extra += 1
 with open(args.out, "w", encoding="utf-8") as f:
-    json.dump({"dt": dt, "start": START["x"].tolist(), "wall_s": wall, "extra_replies": extra, "steps": rows}, f)
+    record = {"dt": dt, "start": START["x"].tolist(), "lockstep": args.lockstep, "wall_s": wall, "extra_replies": extra}
+    json.dump({**record, "steps": rows}, f)

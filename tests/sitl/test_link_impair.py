@@ -1,6 +1,6 @@
 """quad-sitl --link-impair end to end: the node's link to the simulator goes through the impairment
 proxy (TCP, and UDP), the summary and --json say what it did, and the hover still holds at 5 % frame
-loss (real time: in lockstep a lost frame stalls both sides)."""
+loss (real time: in lockstep, where a lost frame would stall both sides, it is refused)."""
 
 from __future__ import annotations
 
@@ -49,3 +49,15 @@ def test_node_only_flies_through_the_proxy_to_a_simulator_it_did_not_start(tmp_p
     li = json.loads(out.read_text())["link_impair"]
     assert li["up"]["delayed"] == li["up"]["frames"] > 150 and li["down"]["delayed"] == li["down"]["frames"]
     assert "link impaired (delay=5ms,seed=0)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("spec", ["loss=5%", "delay=5ms", "duplicate=5%", "burst=1%", "reorder=1%"])
+@pytest.mark.parametrize("node_only", [False, True])
+def test_an_impaired_link_in_lockstep_is_refused_in_one_line(spec, node_only, capsys):
+    # in lockstep a lost frame stalls both sides and a duplicated command steps the simulator twice:
+    # refused before anything starts, not flown into a timeout or a desynchronised flight
+    where = ["--node-only", "--connect", "tcp:127.0.0.1:9"] if node_only else []
+    code = quad_sitl([*where, "--episodes", "1", "--gcs", "none", "--link-impair", spec])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "--link-impair needs --realtime" in err and "add --realtime" in err, err

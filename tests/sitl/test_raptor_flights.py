@@ -80,13 +80,14 @@ def test_rotorpys_px4_simulator_with_sih_quad_x(tmp_path):
     spec = importlib.util.spec_from_file_location("rotorpy_flight", HERE / "test_rotorpy.py")
     t = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(t)
-    # 250 Hz: on a loaded host RotorPy may fly a step on the previous answer (its 10 ms wait missed), a lag
-    # of 4 ms here and of 10 ms at 100 Hz (benchmarks/raptor_flights.py records both)
+    # 250 Hz, in lockstep: RotorPy waits for each step's answer (with its own 10 ms wait, on a loaded host
+    # it may fly a step on the previous answer, a lag of 4 ms here: benchmarks/raptor_flights.py records it)
     case = t.RotorPyFlight(
         Path("raptor:foundation"), 250, 2, max_error_m=HOVER_BAR_M, duration_s=4.0, target=(0.4, -0.3, 0.3)
     )
-    rotorpy, _, _, node = t.fly(case, tmp_path)
+    rotorpy, _, _, node = t.fly(case, tmp_path, lockstep=True)
     assert node.returncode == 0, node.stderr
+    t.every_step_on_its_own_answer(rotorpy, 1000)  # no step missed or late
     rows = rotorpy["steps"]
     k = round(t.WINDOW_S * case.rate_hz)
     target = t.rotorpy_target(case.target)
