@@ -31,7 +31,8 @@ def test_link_faults_smoke(tmp_path, capsys):
     capsys.readouterr()
     assert report_link_faults.main([str(out)]) == 0
     text = capsys.readouterr().out
-    assert "| loss 5%: `loss=5%` | 100 | 1/1 | 0 |" in text and "failsafe in 1/1 (state stream silent)" in text
+    assert "| loss 5%: `loss=5%` | 100 | 1/1 | 0 |" in text
+    assert "50 steps without a state flown on the node's estimate" in text
 
 
 def test_link_faults_help_exits_0():
