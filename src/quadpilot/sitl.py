@@ -494,6 +494,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
                 command=commanded,
                 start="landed" if commanded else "air",
                 spin_s=args.spin_us / 1e6,
+                state_loss=args.state_loss,
             )
         )
         if args.tlog is not None:

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from quadpilot.autopilot.state_loss import StateLossConfig
 from quadpilot.console import atomic_output, atomic_write, float_in
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, MAX_SPIN_US
 
@@ -177,6 +178,19 @@ def impair_line(s: dict) -> str:
     return f"  link impaired ({s['spec']})  node→sim {way(up)}; sim→node {way(down)}"
 
 
+def state_loss_type(text: str) -> StateLossConfig:
+    """--state-loss POLICY_S,DESCEND_S → StateLossConfig; one line saying what is expected otherwise."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError(f"{text!r} is not two numbers")
+        return StateLossConfig(policy_s=float(parts[0]), descend_s=float(parts[1]))
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(
+            f"{e}; expected POLICY_S,DESCEND_S in seconds with 0 <= POLICY_S <= DESCEND_S, e.g. 1,2"
+        ) from None
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """--spin-us, and the flags only --node-only takes."""
     p.add_argument(
@@ -195,6 +209,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "lost, delayed, "
         "duplicated, reordered, e.g. loss=5%%,delay=20ms,jitter=5ms,reorder=1%%,duplicate=1%%,burst=1%%,burst-len=5,"
         "seed=N (default seed: --seed); see quadpilot.link.impair",
+    )
+    p.add_argument(
+        "--state-loss",
+        type=state_loss_type,
+        default=StateLossConfig(),
+        metavar="POLICY_S,DESCEND_S",
+        help="When the simulator's states stop while its HIL_SENSOR goes on: the policy flies on the node's "
+        "estimate for POLICY_S seconds, the fallback holds attitude and height until DESCEND_S, then the vehicle "
+        "lands and the motors stop on the ground (autopilot.state_loss). Default: "
+        f"{StateLossConfig().policy_s:g},{StateLossConfig().descend_s:g}",
     )
     g = p.add_argument_group("--node-only (against any PX4-API simulator)")
     g.add_argument(
@@ -385,6 +409,7 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
         target=args.target,
         link_timeout_s=LINK_TIMEOUT_S,
         spin_s=args.spin_us / 1e6,
+        state_loss=args.state_loss,
     )
     tlog = None
     try:

@@ -77,3 +77,25 @@ def test_quad_sitl_says_in_one_line_that_it_refuses_to_arm(capsys):
         "quad-sitl: refusing to arm: no state in 1 s of sensor data (HIL_SENSOR arrives, HIL_STATE_QUATERNION does not)"
     )
     assert err == says
+
+
+def test_an_implausible_estimate_lands_at_once():
+    # the barometer jumps 5 m while the state is lost: the estimate and the barometer disagree, and
+    # the node stops believing either and lands, without waiting for the hold
+    log, rec = fly("state-dropout@2s+3600s,baro-step@2.3s:5", 10.0)
+    changes = [h[2] for h in log.handovers if h[1] == "state-loss"]
+    assert [c.split(":")[0] for c in changes] == ["state lost", "descend", "landed"]
+    assert changes[1].startswith("descend: estimate implausible: barometer +5.0 m")
+    assert rec.touchdown is not None and not rec.crashed and rec.motors_off_airborne_steps == 0
+
+
+@pytest.mark.parametrize(
+    ("value", "says"),
+    [("3,1", "must not exceed descend_s"), ("x", "is not two numbers"), ("1,nan", "descend_s must be")],
+)
+def test_a_bad_state_loss_flag_is_one_line(value, says, capsys):
+    from quadpilot.sitl import main as quad_sitl
+
+    assert quad_sitl(["--state-loss", value]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and says in err and "Traceback" not in err
