@@ -151,3 +151,29 @@ def test_a_frame_the_contract_cannot_fly_is_refused_before_any_training(tmp_path
     argv = ["--task", "hover", "--contract", "px4-raptor", "--vehicle", str(tmp_path / "plus.toml")]
     assert main([*argv, "--out", str(tmp_path / "r")]) == 2
     assert "one rotor per corner" in capsys.readouterr().err and not (tmp_path / "r").exists()
+
+
+def _student_checkpoint(env_config=None) -> dict:
+    """A px4-raptor policy.pt's dict, untrained, for the shipped PX4 SIH teacher's environment."""
+    from quadpilot.train.raptor_distill import checkpoint
+    from quadpilot.train.raptor_student import RaptorStudent
+    from quadpilot.train.runs.checkpoint import load_policy
+
+    env = load_policy("models/hover_px4_sih/policy.pt").env_config if env_config is None else env_config
+    return checkpoint(RaptorStudent(), env, DistillConfig(), "t", {})
+
+
+@pytest.mark.parametrize("dtype", [torch.bool, torch.int32, torch.int64, torch.complex64])
+def test_weights_that_are_not_floating_point_are_refused_not_cast(dtype, tmp_path, capsys):
+    from quadpilot.export.cli import main as export
+
+    ckpt = _student_checkpoint()
+    ckpt["weights"]["layers/0/weights"] = ckpt["weights"]["layers/0/weights"].to(dtype)
+    torch.save(ckpt, tmp_path / "p.pt")
+    name = str(dtype).split(".")[1]  # torch.int32 -> int32, as NumPy names it
+    with pytest.raises(ValueError, match=f"layers/0/weights holds {name} values; expected floating-point"):
+        load_student(tmp_path / "p.pt")
+    assert export(["--format", "px4-raptor", str(tmp_path / "p.pt"), "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "expected floating-point numbers" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
