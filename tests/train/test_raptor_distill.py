@@ -177,3 +177,20 @@ def test_weights_that_are_not_floating_point_are_refused_not_cast(dtype, tmp_pat
     err = capsys.readouterr().err
     assert "expected floating-point numbers" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "says"), [({"task": "waypoint"}, "task waypoint at 100 Hz"), ({"dt": 0.02}, "task hover at 50 Hz")]
+)
+def test_a_student_of_another_task_or_rate_is_refused_by_the_export_in_one_line(change, says, tmp_path, capsys):
+    import dataclasses
+
+    from quadpilot.export.cli import main as export
+    from quadpilot.train.runs.checkpoint import load_policy
+
+    env = dataclasses.replace(load_policy("models/hover_px4_sih/policy.pt").env_config, **change)
+    torch.save(_student_checkpoint(env), tmp_path / "p.pt")
+    assert export(["--format", "px4-raptor", str(tmp_path / "p.pt"), "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert says in err and "flies hover at 100 Hz" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err and not (tmp_path / "out").exists()

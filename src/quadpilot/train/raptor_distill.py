@@ -202,6 +202,11 @@ def checkpoint(student: RaptorStudent, cfg: EnvConfig, dc: DistillConfig, teache
     }
 
 
+def fits_contract(cfg: EnvConfig) -> bool:
+    """True for the environment the contract's policy is made and flown in: hover at its 100 Hz."""
+    return cfg.task == "hover" and abs(cfg.dt - 1.0 / px4_raptor.TRAINING_RATE_HZ) <= 1e-12
+
+
 class StudentCheckpointError(ValueError):
     """A px4-raptor policy.pt that cannot be used (one line)."""
 
@@ -219,13 +224,19 @@ def load_student(path) -> tuple[RaptorStudent, dict]:
     try:
         weights = {k: v.numpy() for k, v in ckpt["weights"].items()}
         student = RaptorStudent.from_weights(weights)
-        EnvConfig.from_json(ckpt["env_config"])  # the environment it came from: export flies it
-        return student, ckpt
+        cfg = EnvConfig.from_json(ckpt["env_config"])  # the environment it came from: export flies it
     except (AttributeError, KeyError, TypeError, ValueError) as e:
         what = f"missing entry {e}" if isinstance(e, KeyError) else str(e).splitlines()[0][:200]
         raise StudentCheckpointError(
             f"{path}: damaged px4-raptor policy ({what}); expected the file quad-train --contract px4-raptor writes"
         ) from None
+    if not fits_contract(cfg):
+        raise StudentCheckpointError(
+            f"{path}: its environment says task {cfg.task} at {1 / cfg.dt:g} Hz; a {CONTRACT} policy flies hover at "
+            f"{px4_raptor.TRAINING_RATE_HZ} Hz (mc_raptor holds a setpoint), as quad-train --contract {CONTRACT} "
+            "writes it"
+        )
+    return student, ckpt
 
 
 def is_student_checkpoint(path) -> bool:
@@ -241,7 +252,7 @@ def is_student_checkpoint(path) -> bool:
 
 def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_source: str, progress=None) -> dict:
     """Run DAgger (module docstring) into the run directory `out`; returns the evaluation."""
-    if cfg.task != "hover" or abs(cfg.dt - 1.0 / px4_raptor.TRAINING_RATE_HZ) > 1e-12:
+    if not fits_contract(cfg):
         raise UsageError(
             f"the teacher flies {cfg.task} at {1 / cfg.dt:g} Hz; the px4-raptor contract needs a hover teacher "
             f"at {px4_raptor.TRAINING_RATE_HZ} Hz (--task hover, the default 0.01 s step)"
