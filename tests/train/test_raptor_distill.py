@@ -194,3 +194,17 @@ def test_a_student_of_another_task_or_rate_is_refused_by_the_export_in_one_line(
     err = capsys.readouterr().err
     assert says in err and "flies hover at 100 Hz" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err and not (tmp_path / "out").exists()
+
+
+def test_a_teacher_mismatch_names_the_parameters_that_differ(tmp_path, capsys):
+    import dataclasses
+
+    from quadpilot.core.vehicle_file import vehicle_to_toml
+
+    heavier = dataclasses.replace(get_preset("px4_sih_quadx"), mass=1.25)  # the teacher's name, not its mass
+    (tmp_path / "heavier.toml").write_text(vehicle_to_toml(heavier))
+    argv = ["--task", "hover", "--contract", "px4-raptor", "--vehicle", str(tmp_path / "heavier.toml")]
+    assert main([*argv, "--teacher", "models/hover_px4_sih/policy.pt", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "flies another px4_sih_quadx (mass 1 vs 1.25 kg: teacher vs --vehicle)" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err

@@ -121,9 +121,15 @@ def train_from_cli(args, argv: list[str]) -> int:
         shown = str(teacher_path)
     teacher = load_policy(teacher_path)
     if not _same_vehicle(teacher.env_config.params, vehicle):
+        from quadpilot.core.vehicle_file import differences
+
+        flown = teacher.env_config.params
+        apart = differences(flown, vehicle)
+        which = f"{flown.name}, not {vehicle.name}" if flown.name != vehicle.name else f"another {vehicle.name}"
         raise UsageError(
-            f"--teacher {teacher_path} flies {teacher.env_config.params.name}, not {vehicle.name}: give the teacher "
-            "of the same vehicle"
+            f"--teacher {teacher_path} flies {which} ({', '.join(apart[:4])}"
+            f"{f' and {len(apart) - 4} more' if len(apart) > 4 else ''}: teacher vs --vehicle); "
+            "give the teacher of the same vehicle"
         )
     cfg = teacher.env_config
     dc = distill_config(args, cfg.episode_steps, sizes=how != "trained")  # else the sizes were the teacher's
