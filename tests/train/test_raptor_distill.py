@@ -208,3 +208,31 @@ def test_a_teacher_mismatch_names_the_parameters_that_differ(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "flies another px4_sih_quadx (mass 1 vs 1.25 kg: teacher vs --vehicle)" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("extra", "code", "says"),
+    [
+        (["--set", "lr=0"], 2, "lr = 0.0: expected a number > 0"),
+        (["--vehicle", HUMMINGBIRD, "--teacher", "models/hover_px4_sih/policy.pt"], 2, "give the teacher of the same"),
+        (["--teacher", "models/circle/policy.pt"], 2, "needs a hover teacher"),
+        (["--teacher", "no-such-teacher.pt"], 1, "no such file"),
+        (["--vehicle", "VEHICLE_WITHOUT_TEACHER", "--set", "nonsense=1"], 2, "a PPO hyper-parameter"),  # its teacher's
+    ],
+)
+def test_a_refused_command_leaves_no_run_directory_behind(extra, code, says, tmp_path, capsys):
+    import dataclasses
+
+    from quadpilot.core.vehicle_file import vehicle_to_toml
+
+    heavy = dataclasses.replace(get_preset("px4_sih_quadx"), name="heavy", mass=1.25)  # no shipped teacher flies it
+    (tmp_path / "heavy.toml").write_text(vehicle_to_toml(heavy))
+    extra = [str(tmp_path / "heavy.toml") if a == "VEHICLE_WITHOUT_TEACHER" else a for a in extra]
+    out = tmp_path / "runs" / "r"
+    assert main(["--task", "hover", "--contract", "px4-raptor", *extra, "--out", str(out)]) == code
+    err = capsys.readouterr().err
+    assert says in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "runs").exists()
+    out.mkdir(parents=True)  # a folder the user made stays, empty or not
+    assert main(["--task", "hover", "--contract", "px4-raptor", *extra, "--out", str(out)]) == code
+    assert out.is_dir()

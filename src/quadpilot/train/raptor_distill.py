@@ -250,8 +250,8 @@ def is_student_checkpoint(path) -> bool:
     return isinstance(ckpt, dict) and ckpt.get("schema") == SCHEMA
 
 
-def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_source: str, progress=None) -> dict:
-    """Run DAgger (module docstring) into the run directory `out`; returns the evaluation."""
+def check_teacher_env(cfg: EnvConfig) -> None:
+    """UsageError (one line) if a teacher trained in `cfg` cannot be distilled into the contract's policy."""
     if not fits_contract(cfg):
         raise UsageError(
             f"the teacher flies {cfg.task} at {1 / cfg.dt:g} Hz; the px4-raptor contract needs a hover teacher "
@@ -261,6 +261,11 @@ def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_sourc
         px4_raptor.policy_order(cfg.params)
     except ValueError as e:
         raise UsageError(str(e)) from None
+
+
+def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_source: str, progress=None) -> dict:
+    """Run DAgger (module docstring) into the run directory `out`; returns the evaluation."""
+    check_teacher_env(cfg)
     torch.manual_seed(dc.seed)
     rng = np.random.default_rng(dc.seed)
     gen = torch.Generator().manual_seed(dc.seed)
