@@ -236,3 +236,20 @@ def test_a_refused_command_leaves_no_run_directory_behind(extra, code, says, tmp
     out.mkdir(parents=True)  # a folder the user made stays, empty or not
     assert main(["--task", "hover", "--contract", "px4-raptor", *extra, "--out", str(out)]) == code
     assert out.is_dir()
+
+
+def test_a_distillation_flight_in_which_every_drone_crashes_is_standard_json():
+    import json
+
+    from quadpilot.train.raptor_distill import fly
+    from quadpilot.train.runs.checkpoint import load_policy
+
+    cfg = load_policy("models/hover_px4_sih/policy.pt").env_config
+
+    def one_motor(x, h):  # one motor at full thrust, the others off: every drone spins and crashes
+        return np.tile(np.array([1.0, -1.0, -1.0, -1.0], np.float32), (len(x), 1)), h
+
+    figures = fly(one_motor, cfg, 4, np.random.default_rng(0))["figures"]
+    assert figures["crash_rate"] == 1.0
+    json.dumps(figures, allow_nan=False)  # eval.json's figures: no NaN
+    assert figures["mean_error_last_window_m"] is None

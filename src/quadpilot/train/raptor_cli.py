@@ -199,9 +199,10 @@ def train_from_cli(args, argv: list[str]) -> int:
         "wall_s": wall,
     }
     (out / "config.json").write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
+    error = evaluation["mean_error_last_window_m"]  # None: every episode crashed
     print(
         f"quad-train: {out}/policy.pt: success {evaluation['success_rate']:.0%} of {evaluation['episodes']} episodes, "
-        f"mean error over the last 2 s {100 * evaluation['mean_error_last_window_m']:.2f} cm "
-        f"({wall:.0f} s); next: quad-export --format px4-raptor {out}/policy.pt"
+        + ("every one crashed" if error is None else f"mean error over the last 2 s {100 * error:.2f} cm")
+        + f" ({wall:.0f} s); next: quad-export --format px4-raptor {out}/policy.pt"
     )
     return 0

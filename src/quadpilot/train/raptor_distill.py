@@ -161,10 +161,11 @@ def fly(policy, cfg: EnvConfig, n: int, rng, teacher=None, teacher_drives=False)
             "episodes": n,
             "success_rate": float(success.mean()),
             "crash_rate": float((~alive).mean()),
-            "mean_error_last_window_m": float(mean_err[alive].mean()) if some else math.nan,
-            "max_error_last_window_m": float(mean_err[alive].max()) if some else math.nan,
-            "max_mean_abs_yaw_rate_last_window_rad_s": float(mean_rate[alive].max()) if some else math.nan,
-            "max_mean_heading_error_last_window_deg": float(np.degrees(mean_head[alive].max())) if some else math.nan,
+            # None (JSON null) when every drone crashed, as `evaluate` gives them
+            "mean_error_last_window_m": float(mean_err[alive].mean()) if some else None,
+            "max_error_last_window_m": float(mean_err[alive].max()) if some else None,
+            "max_mean_abs_yaw_rate_last_window_rad_s": float(mean_rate[alive].max()) if some else None,
+            "max_mean_heading_error_last_window_deg": float(np.degrees(mean_head[alive].max())) if some else None,
             "success_tolerance_m": cfg.success_tolerance,
             "window_s": cfg.success_window,
         },
@@ -306,7 +307,8 @@ def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_sourc
             )
     evaluation = fly(torch_policy(student), cfg, 100, np.random.default_rng(12345))["figures"]
     evaluation.update(task="hover", contract=CONTRACT, seed=12345, episode_steps=T, teacher=teacher_source)
-    atomic_write(out / "eval.json", lambda f: f.write((json.dumps(evaluation, indent=2) + "\n").encode()))
+    text = json.dumps(evaluation, indent=2, allow_nan=False) + "\n"  # standard JSON: no NaN
+    atomic_write(out / "eval.json", lambda f: f.write(text.encode()))
     return evaluation
 
 
