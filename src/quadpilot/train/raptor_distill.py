@@ -42,7 +42,7 @@ from quadpilot.core.state import POS, YAW
 from .envs import EnvConfig, QuadBatch
 from .raptor_student import RaptorStudent
 
-SCHEMA = "quadpilot.px4-raptor/1"
+SCHEMA = px4_raptor.STUDENT_SCHEMA
 CONTRACT = "px4-raptor"
 
 
