@@ -237,3 +237,18 @@ def test_rotorpys_parasitic_drag_reads_as_it_is_written():
     v = parse_vehicle(_variant(drag_quadratic=f"[{rp['c_Dx']}, {rp['c_Dy']}, {rp['c_Dz']}]").encode())
     assert (v.c_dx, v.c_dy, v.c_dz) == (rp["c_Dx"], rp["c_Dy"], rp["c_Dz"])
     assert "drag_quadratic" not in vehicle_to_toml(parse_vehicle(_variant().encode()))  # none: not written
+
+
+def test_differences_name_each_parameter_with_its_unit_and_every_number_has_one():
+    from quadpilot.core.params import get_preset
+    from quadpilot.core.vehicle_file import UNITS, differences
+
+    numbers = {f.name for f in dataclasses.fields(VehicleParams)} - {"name", "rotors"}
+    assert set(UNITS) == numbers
+    a = get_preset("px4_sih_quadx")
+    b = dataclasses.replace(a, name="other", mass=1.5, k_f=a.k_f * (1 + 1e-9))
+    assert differences(a, a) == [] and differences(a, dataclasses.replace(a, name="x")) == []
+    assert differences(a, b) == ["mass 1 vs 1.5 kg", f"k_f {a.k_f!r} vs {b.k_f!r} N/(rad/s)²"]
+    wider = dataclasses.replace(a, arm=None, rotors=[Rotor(1.25 * r.x, 1.25 * r.y, r.spin) for r in a.rotors])
+    assert [d.split(" ")[0] for d in differences(a, wider)] == ["arm", "rotors"]
+    assert differences(a, wider)[1].endswith("(x, y in m, FRD)")

@@ -490,3 +490,26 @@ def test_accepted_array_forms_give_the_golden_command(hover_policy, layout):
 
 def test_schema_constant_is_what_the_shipped_file_says():
     assert get_meta(hover_model(), "quadpilot.schema") == SCHEMA
+
+
+@pytest.mark.parametrize(
+    ("checkpoint", "says"),
+    [
+        (
+            "hover_px4_raptor_sih",
+            "a px4-raptor checkpoint (quad-train --contract px4-raptor), not a policy file; "
+            "export it with quad-export --format px4-raptor ",
+        ),
+        ("hover", "a PyTorch checkpoint, not a policy file; export it with quad-export "),
+    ],
+)
+def test_a_checkpoint_given_as_the_policy_file_says_how_to_export_it(checkpoint, says, capsys):
+    from quadpilot.sitl import main as sitl
+
+    pt = HOVER.parents[1] / checkpoint / "policy.pt"
+    with pytest.raises(ModelContractError, match=re.escape(says)):
+        load_policy(pt, "numpy")
+    assert sitl([str(pt), "--episodes", "1", "--gcs", "none"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("quad-sitl: error:") and says in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err

@@ -104,6 +104,8 @@ def test_bad_weight_dicts_are_refused(checkpoint):
         ("layers/1/weights_hidden", np.zeros((16, 48), np.float32), "shape"),
         ("layers/0/biases", np.full(16, np.nan, np.float32), "non-finite"),
         ("layers/2/biases", "four", "not an array of numbers"),
+        ("layers/2/biases", np.ones(4, np.int64), "holds int64 values; expected floating-point"),
+        ("layers/2/biases", np.ones(4, bool), "holds bool values; expected floating-point"),
     ]:
         with pytest.raises(ModelContractError, match=why):
             check_weights({**weights, key: bad})

@@ -151,3 +151,105 @@ def test_a_frame_the_contract_cannot_fly_is_refused_before_any_training(tmp_path
     argv = ["--task", "hover", "--contract", "px4-raptor", "--vehicle", str(tmp_path / "plus.toml")]
     assert main([*argv, "--out", str(tmp_path / "r")]) == 2
     assert "one rotor per corner" in capsys.readouterr().err and not (tmp_path / "r").exists()
+
+
+def _student_checkpoint(env_config=None) -> dict:
+    """A px4-raptor policy.pt's dict, untrained, for the shipped PX4 SIH teacher's environment."""
+    from quadpilot.train.raptor_distill import checkpoint
+    from quadpilot.train.raptor_student import RaptorStudent
+    from quadpilot.train.runs.checkpoint import load_policy
+
+    env = load_policy("models/hover_px4_sih/policy.pt").env_config if env_config is None else env_config
+    return checkpoint(RaptorStudent(), env, DistillConfig(), "t", {})
+
+
+@pytest.mark.parametrize("dtype", [torch.bool, torch.int32, torch.int64, torch.complex64])
+def test_weights_that_are_not_floating_point_are_refused_not_cast(dtype, tmp_path, capsys):
+    from quadpilot.export.cli import main as export
+
+    ckpt = _student_checkpoint()
+    ckpt["weights"]["layers/0/weights"] = ckpt["weights"]["layers/0/weights"].to(dtype)
+    torch.save(ckpt, tmp_path / "p.pt")
+    name = str(dtype).split(".")[1]  # torch.int32 -> int32, as NumPy names it
+    with pytest.raises(ValueError, match=f"layers/0/weights holds {name} values; expected floating-point"):
+        load_student(tmp_path / "p.pt")
+    assert export(["--format", "px4-raptor", str(tmp_path / "p.pt"), "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "expected floating-point numbers" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "says"), [({"task": "waypoint"}, "task waypoint at 100 Hz"), ({"dt": 0.02}, "task hover at 50 Hz")]
+)
+def test_a_student_of_another_task_or_rate_is_refused_by_the_export_in_one_line(change, says, tmp_path, capsys):
+    import dataclasses
+
+    from quadpilot.export.cli import main as export
+    from quadpilot.train.runs.checkpoint import load_policy
+
+    env = dataclasses.replace(load_policy("models/hover_px4_sih/policy.pt").env_config, **change)
+    torch.save(_student_checkpoint(env), tmp_path / "p.pt")
+    assert export(["--format", "px4-raptor", str(tmp_path / "p.pt"), "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert says in err and "flies hover at 100 Hz" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err and not (tmp_path / "out").exists()
+
+
+def test_a_teacher_mismatch_names_the_parameters_that_differ(tmp_path, capsys):
+    import dataclasses
+
+    from quadpilot.core.vehicle_file import vehicle_to_toml
+
+    heavier = dataclasses.replace(get_preset("px4_sih_quadx"), mass=1.25)  # the teacher's name, not its mass
+    (tmp_path / "heavier.toml").write_text(vehicle_to_toml(heavier))
+    argv = ["--task", "hover", "--contract", "px4-raptor", "--vehicle", str(tmp_path / "heavier.toml")]
+    assert main([*argv, "--teacher", "models/hover_px4_sih/policy.pt", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "flies another px4_sih_quadx (mass 1 vs 1.25 kg: teacher vs --vehicle)" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("extra", "code", "says"),
+    [
+        (["--set", "lr=0"], 2, "lr = 0.0: expected a number > 0"),
+        (["--vehicle", HUMMINGBIRD, "--teacher", "models/hover_px4_sih/policy.pt"], 2, "give the teacher of the same"),
+        (["--teacher", "models/circle/policy.pt"], 2, "needs a hover teacher"),
+        (["--teacher", "no-such-teacher.pt"], 1, "no such file"),
+        (["--vehicle", "VEHICLE_WITHOUT_TEACHER", "--set", "nonsense=1"], 2, "a PPO hyper-parameter"),  # its teacher's
+    ],
+)
+def test_a_refused_command_leaves_no_run_directory_behind(extra, code, says, tmp_path, capsys):
+    import dataclasses
+
+    from quadpilot.core.vehicle_file import vehicle_to_toml
+
+    heavy = dataclasses.replace(get_preset("px4_sih_quadx"), name="heavy", mass=1.25)  # no shipped teacher flies it
+    (tmp_path / "heavy.toml").write_text(vehicle_to_toml(heavy))
+    extra = [str(tmp_path / "heavy.toml") if a == "VEHICLE_WITHOUT_TEACHER" else a for a in extra]
+    out = tmp_path / "runs" / "r"
+    assert main(["--task", "hover", "--contract", "px4-raptor", *extra, "--out", str(out)]) == code
+    err = capsys.readouterr().err
+    assert says in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "runs").exists()
+    out.mkdir(parents=True)  # a folder the user made stays, empty or not
+    assert main(["--task", "hover", "--contract", "px4-raptor", *extra, "--out", str(out)]) == code
+    assert out.is_dir()
+
+
+def test_a_distillation_flight_in_which_every_drone_crashes_is_standard_json():
+    import json
+
+    from quadpilot.train.raptor_distill import fly
+    from quadpilot.train.runs.checkpoint import load_policy
+
+    cfg = load_policy("models/hover_px4_sih/policy.pt").env_config
+
+    def one_motor(x, h):  # one motor at full thrust, the others off: every drone spins and crashes
+        return np.tile(np.array([1.0, -1.0, -1.0, -1.0], np.float32), (len(x), 1)), h
+
+    figures = fly(one_motor, cfg, 4, np.random.default_rng(0))["figures"]
+    assert figures["crash_rate"] == 1.0
+    json.dumps(figures, allow_nan=False)  # eval.json's figures: no NaN
+    assert figures["mean_error_last_window_m"] is None

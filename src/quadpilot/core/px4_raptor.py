@@ -51,6 +51,9 @@ MAX_POSITION_ERROR_M = 0.5
 """mc_raptor.hpp `max_position_error`: each component of the position error is clipped to this."""
 MAX_VELOCITY_ERROR_M_S = 1.0
 """mc_raptor.hpp `max_velocity_error`."""
+STUDENT_SCHEMA = "quadpilot.px4-raptor/1"
+"""The schema of the checkpoint `quad-train --contract px4-raptor` writes (`train.raptor_distill`):
+torch tensors to export with `quad-export --format px4-raptor`, not a file anything flies."""
 TRAINING_RATE_HZ = 100
 """mc_raptor.hpp POLICY_CONTROL_FREQUENCY_TRAINING: the rate the GRU state advances at."""
 RESET_PREVIOUS_ACTION = 0.0

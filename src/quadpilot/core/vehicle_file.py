@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import fields
 from pathlib import Path
 
 try:  # stdlib from Python 3.11; the `tomli` backport (same API) on 3.10
@@ -360,3 +361,49 @@ def _steps(v: float, n: int) -> tuple[float, float]:
     for _ in range(n):
         up, down = math.nextafter(up, math.inf), math.nextafter(down, -math.inf)
     return up, down
+
+
+UNITS = {
+    "mass": "kg",
+    "arm": "m",
+    "ixx": "kg·m²",
+    "iyy": "kg·m²",
+    "izz": "kg·m²",
+    "k_f": "N/(rad/s)²",
+    "k_m": "m",
+    "omega_max": "rad/s",
+    "motor_tau": "s",
+    "drag": "N·s/m",
+    "gravity": "m/s²",
+    "omega_min": "rad/s",
+    "c_dx": "N/(m/s)²",
+    "c_dy": "N/(m/s)²",
+    "c_dz": "N/(m/s)²",
+    "k_d": "N/(rad/s · m/s)",
+    "k_z": "N/(rad/s · m/s)",
+    "k_h": "N/(m/s)²",
+    "k_flap": "N·m/(rad/s · m/s)",
+}
+"""Each `VehicleParams` number's unit, as its field's docstring gives it (for messages)."""
+
+
+def _rotor_rows(rotors) -> str:
+    return " ".join(f"({r.x:.4g}, {r.y:.4g}, {r.spin})" for r in rotors)
+
+
+def differences(a: VehicleParams, b: VehicleParams) -> list[str]:
+    """What differs between two vehicles but their names, in field order, for a message:
+    "mass 0.665 vs 0.03 kg" (a's value first), "rotors (x, y, spin) ... vs ..."."""
+    out = []
+    for f in fields(a):
+        va, vb = getattr(a, f.name), getattr(b, f.name)
+        if f.name == "name" or va == vb:
+            continue
+        if f.name == "rotors":
+            out.append(f"rotors {_rotor_rows(va)} vs {_rotor_rows(vb)} (x, y in m, FRD)")
+            continue
+        ta, tb = f"{va:.6g}", f"{vb:.6g}"
+        if ta == tb:  # apart only beyond six digits
+            ta, tb = repr(va), repr(vb)
+        out.append(f"{f.name} {ta} vs {tb} {UNITS[f.name]}")
+    return out

@@ -42,6 +42,7 @@ from quadpilot.core.dynamics import MOTOR_NAMES
 from quadpilot.core.mission import TASKS
 from quadpilot.core.observation import ObsLayout, get_layout
 from quadpilot.core.params import VehicleParams
+from quadpilot.core.px4_raptor import STUDENT_SCHEMA
 
 from .contract import NUM_MOTORS, ModelContractError, ModelInfo, fail, one_line, quote
 from .graph import OPSETS as OPSETS  # re-exported: quad-export reads the operator sets from here
@@ -106,6 +107,22 @@ def _number(value) -> float | None:
         return None
 
 
+ZIP_MAGIC = b"PK\x03\x04"
+"""How a zip archive starts: what torch.save writes (a checkpoint, never a policy file)."""
+
+
+def _checkpoint_not_policy(path, data: bytes) -> str:
+    """What to do with a torch checkpoint given where a policy file is expected. Read for its bytes
+    only, never unpickled: torch stores the pickle uncompressed, so the student's schema string
+    appears in the file as it is."""
+    if STUDENT_SCHEMA.encode() in data:
+        return (
+            "a px4-raptor checkpoint (quad-train --contract px4-raptor), not a policy file; export it with "
+            f"quad-export --format px4-raptor {path} and fly the policy.tar it writes"
+        )
+    return f"a PyTorch checkpoint, not a policy file; export it with quad-export {path} and fly the .onnx file"
+
+
 def read_model(path: str | os.PathLike):
     """Parse and check an exported policy file. Returns (onnx.ModelProto, ModelInfo)."""
     import onnx
@@ -125,6 +142,8 @@ def read_model(path: str | os.PathLike):
         data = path.read_bytes()
     except OSError as e:  # a name too long, no permission to read, ...
         raise fail(path, f"cannot read it: {e.strerror or e}") from None
+    if data.startswith(ZIP_MAGIC):
+        raise fail(path, _checkpoint_not_policy(path, data))
     try:
         model = onnx.ModelProto()
         model.ParseFromString(data)

@@ -57,13 +57,21 @@ EXAMPLE_TOLERANCE = 1e-5
 
 def check_weights(weights: dict, where: str = "GRU weights") -> dict:
     """The dict as float32 arrays of exactly `GRU_KEYS`' shapes, all finite (a (1, n) bias, as RLtools
-    stores dense biases, is taken as (n,)); ModelContractError naming the first problem otherwise."""
+    stores dense biases, is taken as (n,)), from floating-point arrays only (bool, integer and complex
+    ones are refused, not cast); ModelContractError naming the first problem otherwise."""
     out = {}
     for key, shape in GRU_KEYS.items():
         if key not in weights:
             raise ModelContractError(f"{where}: no {key!r}; expected the keys {sorted(GRU_KEYS)}")
         try:
-            a = np.asarray(weights[key], np.float32)
+            a = np.asarray(weights[key])
+        except (TypeError, ValueError):
+            a = np.asarray(None)
+        # a cast would pass true/false, integers or the real part of complex numbers off as weights
+        if a.dtype.kind in "biuc":
+            raise ModelContractError(f"{where}: {key} holds {a.dtype} values; expected floating-point numbers")
+        try:
+            a = a.astype(np.float32)
         except (TypeError, ValueError):
             raise ModelContractError(f"{where}: {key} is not an array of numbers") from None
         if a.ndim == 2 and a.shape[0] == 1 and len(shape) == 1:

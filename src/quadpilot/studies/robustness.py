@@ -424,12 +424,12 @@ def scenario_metrics(flight: Flight, target: np.ndarray, direction: np.ndarray, 
 # --- report ------------------------------------------------------------------------------------
 
 
-def _pct(x: float) -> str:
-    return "–" if not math.isfinite(x) else f"{100 * x:.0f} %"
+def _pct(x: float | None) -> str:  # None: no episode to take it over (`evaluate`, every one crashed)
+    return "–" if x is None or not math.isfinite(x) else f"{100 * x:.0f} %"
 
 
-def _cm(x: float) -> str:
-    return "–" if not math.isfinite(x) else f"{100 * x:.1f}"
+def _cm(x: float | None) -> str:
+    return "–" if x is None or not math.isfinite(x) else f"{100 * x:.1f}"
 
 
 def grid_table(results: dict[str, list[dict]]) -> str:

@@ -4,6 +4,9 @@ runtime's): a policy is any callable mapping raw observations (N, obs_dim) float
 true) with `initial_state(n)` and `step(obs, state)` → (actions, state), started once per
 evaluation (every episode starts together at step 0).
 
+The figures over the episodes that did not crash (errors, yaw, circle tracking) are None when every
+episode crashed: the dict is JSON-able as standard JSON (`json.dumps(..., allow_nan=False)`).
+
 Success is `core.mission`'s definition (`window_success`), the one SITL judges by too.
 Hover/waypoint: the episode does not crash, the mean position error over its last 2 s is ≤ 0.05 m,
 and over the same 2 s the mean |yaw rate| is ≤ 0.2 rad/s and the mean heading error ≤ 10° (the
@@ -41,6 +44,12 @@ def _park(batch: QuadBatch, out: np.ndarray) -> None:
     s[out] = 0.0
     s[out, POS] = batch.target[out]
     s[out, YAW] = batch.heading[out]
+
+
+def _over_alive(values: np.ndarray, alive: np.ndarray, reduce) -> float | None:
+    """`reduce` over the episodes that did not crash; None (JSON null) when every one crashed, so that
+    the result stays standard JSON (RFC 8259 has no NaN)."""
+    return float(reduce(values[alive])) if alive.any() else None
 
 
 def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int = 12345) -> dict:
@@ -100,16 +109,14 @@ def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int 
         "crash_rate": float((~alive).mean()),
         "mean_return": float(ep_return.mean()),
         "mean_length": float(length.mean()),
-        "mean_error_last_window_m": float(mean_err[alive].mean()) if alive.any() else float("nan"),
-        "max_error_last_window_m": float(mean_err[alive].max()) if alive.any() else float("nan"),
-        "mean_final_distance_m": float(final_err[alive].mean()) if alive.any() else float("nan"),
+        "mean_error_last_window_m": _over_alive(mean_err, alive, np.mean),
+        "max_error_last_window_m": _over_alive(mean_err, alive, np.max),
+        "mean_final_distance_m": _over_alive(final_err, alive, np.mean),
         "success_tolerance_m": cfg.success_tolerance,
         "window_s": cfg.success_window,
-        "mean_abs_yaw_rate_last_window_rad_s": float(mean_rate[alive].mean()) if alive.any() else float("nan"),
-        "max_mean_abs_yaw_rate_last_window_rad_s": float(mean_rate[alive].max()) if alive.any() else float("nan"),
-        "max_mean_heading_error_last_window_deg": float(np.degrees(mean_head[alive].max()))
-        if alive.any()
-        else float("nan"),
+        "mean_abs_yaw_rate_last_window_rad_s": _over_alive(mean_rate, alive, np.mean),
+        "max_mean_abs_yaw_rate_last_window_rad_s": _over_alive(mean_rate, alive, np.max),
+        "max_mean_heading_error_last_window_deg": _over_alive(np.degrees(mean_head), alive, np.max),
     }
     if cfg.task == "circle":
         rms = np.sqrt(rad_sq / max(tracked, 1))
@@ -121,8 +128,8 @@ def evaluate(policy: Policy, env_cfg: EnvConfig, episodes: int = 100, seed: int 
             & holds_heading(mean_rate, mean_head)
         )
         out.update(
-            radial_rms_m=float(rms[alive].mean()) if alive.any() else float("nan"),
-            speed_error_mps=float(spd[alive].mean()) if alive.any() else float("nan"),
+            radial_rms_m=_over_alive(rms, alive, np.mean),
+            speed_error_mps=_over_alive(spd, alive, np.mean),
             circle_success_rate=float(ok.mean()),
         )
     return out

@@ -16,7 +16,7 @@ from pathlib import Path
 from quadpilot.console import UsageError
 
 from .options import _vehicle
-from .raptor_distill import CONTRACT, DistillConfig, distill
+from .raptor_distill import CONTRACT, DistillConfig, check_teacher_env, distill
 
 CONTRACTS = (CONTRACT,)
 TEACHER_DIR = "teacher"
@@ -85,6 +85,52 @@ def distill_config(args, episode_steps: int, sizes: bool = True) -> DistillConfi
         raise UsageError(f"--contract {CONTRACT}: {e}") from None
 
 
+def _teacher(teacher, path: Path, vehicle):
+    """The loaded teacher, if it is one the contract can distil for `vehicle` (UsageError, one line)."""
+    if not _same_vehicle(teacher.env_config.params, vehicle):
+        from quadpilot.core.vehicle_file import differences
+
+        flown = teacher.env_config.params
+        apart = differences(flown, vehicle)
+        which = f"{flown.name}, not {vehicle.name}" if flown.name != vehicle.name else f"another {vehicle.name}"
+        raise UsageError(
+            f"--teacher {path} flies {which} ({', '.join(apart[:4])}"
+            f"{f' and {len(apart) - 4} more' if len(apart) > 4 else ''}: teacher vs --vehicle); "
+            "give the teacher of the same vehicle"
+        )
+    check_teacher_env(teacher.env_config)
+    return teacher
+
+
+def _first_missing(out: Path) -> Path | None:
+    """The outermost directory of `out` (itself included) that does not exist yet: what mkdir will make."""
+    top = None
+    for d in (out, *out.parents):
+        if d.exists():
+            break
+        top = d
+    return top
+
+
+def _remove_if_empty(out: Path, top: Path | None) -> None:
+    """Remove what mkdir made of `out` up to `top` (`_first_missing`), as long as nothing is in it
+    but, perhaps, an empty teacher directory (a refused teacher's training)."""
+    if top is None:
+        return
+    if (out / TEACHER_DIR).is_dir():
+        try:
+            (out / TEACHER_DIR).rmdir()
+        except OSError:
+            return
+    for d in (out, *out.parents):
+        try:
+            d.rmdir()  # only ever removes an empty directory
+        except OSError:
+            return
+        if d == top:
+            return
+
+
 def train_from_cli(args, argv: list[str]) -> int:
     from .runs.checkpoint import load_policy
     from .runs.loop import Progress, train
@@ -103,7 +149,7 @@ def train_from_cli(args, argv: list[str]) -> int:
     torch.set_num_threads(args.threads or 1)
     vehicle = _vehicle(args)
     out = Path(args.out or f"runs/hover-px4-raptor-{vehicle.name}")
-    out.mkdir(parents=True, exist_ok=True)
+    # every refusal of the command comes before the run directory is made: none is left empty behind
     if args.teacher is not None:
         teacher_path, how = Path(args.teacher), "given"
         shown = str(teacher_path)
@@ -111,22 +157,30 @@ def train_from_cli(args, argv: list[str]) -> int:
         teacher_path, how = found, "shipped"
         shown = f"models/{found.parent.name}/{found.name}"  # the shipped model's name, not this machine's path
     else:
+        teacher_path, how = out / TEACHER_DIR / "policy.pt", "trained"
+        shown = str(teacher_path)
+    if how != "trained":
+        teacher = _teacher(load_policy(teacher_path), teacher_path, vehicle)
+        dc = distill_config(args, teacher.env_config.episode_steps)
+        out.mkdir(parents=True, exist_ok=True)
+    else:
+        distill_config(args, 1, sizes=False)  # the seed, checked before the teacher's training
+        made = _first_missing(out)
+        out.mkdir(parents=True, exist_ok=True)
         teacher_args = copy.copy(args)
         teacher_args.out, teacher_args.contract = str(out / TEACHER_DIR), None
         print(f"quad-train: no shipped teacher flies {vehicle.name}: training one first in {teacher_args.out}")
-        status = train(teacher_args, argv)
+        status = None
+        try:
+            status = train(teacher_args, argv)
+        finally:
+            if status != 0:  # refused (or failed) before the teacher's run wrote anything: no empty folder
+                _remove_if_empty(out, made)
         if status != 0:
             return status
-        teacher_path, how = out / TEACHER_DIR / "policy.pt", "trained"
-        shown = str(teacher_path)
-    teacher = load_policy(teacher_path)
-    if not _same_vehicle(teacher.env_config.params, vehicle):
-        raise UsageError(
-            f"--teacher {teacher_path} flies {teacher.env_config.params.name}, not {vehicle.name}: give the teacher "
-            "of the same vehicle"
-        )
+        teacher = _teacher(load_policy(teacher_path), teacher_path, vehicle)
+        dc = distill_config(args, teacher.env_config.episode_steps, sizes=False)  # the sizes were the teacher's
     cfg = teacher.env_config
-    dc = distill_config(args, cfg.episode_steps, sizes=how != "trained")  # else the sizes were the teacher's
     label = f"quad-train hover ({CONTRACT})"
     progress = Progress(label, 0, dc.iterations * dc.num_envs * cfg.episode_steps)
     try:
@@ -145,9 +199,10 @@ def train_from_cli(args, argv: list[str]) -> int:
         "wall_s": wall,
     }
     (out / "config.json").write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
+    error = evaluation["mean_error_last_window_m"]  # None: every episode crashed
     print(
         f"quad-train: {out}/policy.pt: success {evaluation['success_rate']:.0%} of {evaluation['episodes']} episodes, "
-        f"mean error over the last 2 s {100 * evaluation['mean_error_last_window_m']:.2f} cm "
-        f"({wall:.0f} s); next: quad-export --format px4-raptor {out}/policy.pt"
+        + ("every one crashed" if error is None else f"mean error over the last 2 s {100 * error:.2f} cm")
+        + f" ({wall:.0f} s); next: quad-export --format px4-raptor {out}/policy.pt"
     )
     return 0

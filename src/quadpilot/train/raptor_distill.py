@@ -42,7 +42,7 @@ from quadpilot.core.state import POS, YAW
 from .envs import EnvConfig, QuadBatch
 from .raptor_student import RaptorStudent
 
-SCHEMA = "quadpilot.px4-raptor/1"
+SCHEMA = px4_raptor.STUDENT_SCHEMA
 CONTRACT = "px4-raptor"
 
 
@@ -161,10 +161,11 @@ def fly(policy, cfg: EnvConfig, n: int, rng, teacher=None, teacher_drives=False)
             "episodes": n,
             "success_rate": float(success.mean()),
             "crash_rate": float((~alive).mean()),
-            "mean_error_last_window_m": float(mean_err[alive].mean()) if some else math.nan,
-            "max_error_last_window_m": float(mean_err[alive].max()) if some else math.nan,
-            "max_mean_abs_yaw_rate_last_window_rad_s": float(mean_rate[alive].max()) if some else math.nan,
-            "max_mean_heading_error_last_window_deg": float(np.degrees(mean_head[alive].max())) if some else math.nan,
+            # None (JSON null) when every drone crashed, as `evaluate` gives them
+            "mean_error_last_window_m": float(mean_err[alive].mean()) if some else None,
+            "max_error_last_window_m": float(mean_err[alive].max()) if some else None,
+            "max_mean_abs_yaw_rate_last_window_rad_s": float(mean_rate[alive].max()) if some else None,
+            "max_mean_heading_error_last_window_deg": float(np.degrees(mean_head[alive].max())) if some else None,
             "success_tolerance_m": cfg.success_tolerance,
             "window_s": cfg.success_window,
         },
@@ -202,6 +203,11 @@ def checkpoint(student: RaptorStudent, cfg: EnvConfig, dc: DistillConfig, teache
     }
 
 
+def fits_contract(cfg: EnvConfig) -> bool:
+    """True for the environment the contract's policy is made and flown in: hover at its 100 Hz."""
+    return cfg.task == "hover" and abs(cfg.dt - 1.0 / px4_raptor.TRAINING_RATE_HZ) <= 1e-12
+
+
 class StudentCheckpointError(ValueError):
     """A px4-raptor policy.pt that cannot be used (one line)."""
 
@@ -219,13 +225,19 @@ def load_student(path) -> tuple[RaptorStudent, dict]:
     try:
         weights = {k: v.numpy() for k, v in ckpt["weights"].items()}
         student = RaptorStudent.from_weights(weights)
-        EnvConfig.from_json(ckpt["env_config"])  # the environment it came from: export flies it
-        return student, ckpt
+        cfg = EnvConfig.from_json(ckpt["env_config"])  # the environment it came from: export flies it
     except (AttributeError, KeyError, TypeError, ValueError) as e:
         what = f"missing entry {e}" if isinstance(e, KeyError) else str(e).splitlines()[0][:200]
         raise StudentCheckpointError(
             f"{path}: damaged px4-raptor policy ({what}); expected the file quad-train --contract px4-raptor writes"
         ) from None
+    if not fits_contract(cfg):
+        raise StudentCheckpointError(
+            f"{path}: its environment says task {cfg.task} at {1 / cfg.dt:g} Hz; a {CONTRACT} policy flies hover at "
+            f"{px4_raptor.TRAINING_RATE_HZ} Hz (mc_raptor holds a setpoint), as quad-train --contract {CONTRACT} "
+            "writes it"
+        )
+    return student, ckpt
 
 
 def is_student_checkpoint(path) -> bool:
@@ -239,9 +251,9 @@ def is_student_checkpoint(path) -> bool:
     return isinstance(ckpt, dict) and ckpt.get("schema") == SCHEMA
 
 
-def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_source: str, progress=None) -> dict:
-    """Run DAgger (module docstring) into the run directory `out`; returns the evaluation."""
-    if cfg.task != "hover" or abs(cfg.dt - 1.0 / px4_raptor.TRAINING_RATE_HZ) > 1e-12:
+def check_teacher_env(cfg: EnvConfig) -> None:
+    """UsageError (one line) if a teacher trained in `cfg` cannot be distilled into the contract's policy."""
+    if not fits_contract(cfg):
         raise UsageError(
             f"the teacher flies {cfg.task} at {1 / cfg.dt:g} Hz; the px4-raptor contract needs a hover teacher "
             f"at {px4_raptor.TRAINING_RATE_HZ} Hz (--task hover, the default 0.01 s step)"
@@ -250,6 +262,11 @@ def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_sourc
         px4_raptor.policy_order(cfg.params)
     except ValueError as e:
         raise UsageError(str(e)) from None
+
+
+def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_source: str, progress=None) -> dict:
+    """Run DAgger (module docstring) into the run directory `out`; returns the evaluation."""
+    check_teacher_env(cfg)
     torch.manual_seed(dc.seed)
     rng = np.random.default_rng(dc.seed)
     gen = torch.Generator().manual_seed(dc.seed)
@@ -290,7 +307,8 @@ def distill(teacher, cfg: EnvConfig, out: Path, dc: DistillConfig, teacher_sourc
             )
     evaluation = fly(torch_policy(student), cfg, 100, np.random.default_rng(12345))["figures"]
     evaluation.update(task="hover", contract=CONTRACT, seed=12345, episode_steps=T, teacher=teacher_source)
-    atomic_write(out / "eval.json", lambda f: f.write((json.dumps(evaluation, indent=2) + "\n").encode()))
+    text = json.dumps(evaluation, indent=2, allow_nan=False) + "\n"  # standard JSON: no NaN
+    atomic_write(out / "eval.json", lambda f: f.write(text.encode()))
     return evaluation
 
 
