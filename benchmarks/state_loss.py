@@ -4,8 +4,10 @@
     .venv/bin/python benchmarks/report_state_loss.py docs/bench/state_loss.json   # docs/robustness.md's table
 
 The shipped hover policy (models/hover, numpy backend) flown by the node (`autopilot.node`) against
-our simulator in lockstep, in this process, at 100 and 250 Hz, `--episodes` episodes per condition
-(the simulator's seeded starts: episode k of seed 0, the same starts in every condition). The state
+our simulator in lockstep, in this process, at 100 and 250 Hz, with an ideal IMU and with the seed
+vehicle's noisy one (ADIS16448: white noise, turn-on bias and bias random walk, `SimConfig.imu_noise`),
+`--episodes` episodes per condition (the simulator's seeded starts: episode k of seed 0, the same
+starts in every condition). The state
 stream (HIL_STATE_QUATERNION) is withheld by the simulator's `state-dropout` fault while HIL_SENSOR
 goes on (`firmware_sim.faults`):
 
@@ -16,7 +18,9 @@ goes on (`firmware_sim.faults`):
   before it, the fastest descent, steps flown with every motor off in the air, a crash.
 - `no state at all`: a landed start whose state never comes (3 s): the node must refuse to arm.
 
-Every episode's values are kept in the JSON.
+Every episode's values are kept in the JSON, and one flight's trace (the endless dropout at 100 Hz
+with the noisy IMU, episode 0: the simulator's ground truth and the node's estimate) for the plot
+`benchmarks/report_state_loss.py --plot` draws.
 """
 
 from __future__ import annotations
@@ -38,6 +42,9 @@ from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.sitl import SHIPPED_HOVER
 
 RATES_HZ = (100, 250)
+IMUS = {"ideal": False, "noisy": True}
+TRACED = ("dropout never ends", 100, "noisy")
+"""The flight whose trace the JSON keeps: condition, rate, IMU."""
 CONDITIONS = {
     # name: (fault, flight s, start)
     "dropout 0.5 s": ("state-dropout@2s+0.5s", 5.0, "air"),
@@ -47,8 +54,11 @@ CONDITIONS = {
 }
 
 
-def fly(fault: str, duration_s: float, start: str, rate_hz: int, episodes: int) -> list[dict]:
-    """`episodes` flights of one condition; one dict of values per episode."""
+def fly(
+    fault: str, duration_s: float, start: str, rate_hz: int, episodes: int, imu_noise: bool, trace: bool = False
+) -> tuple[list[dict], dict | None]:
+    """`episodes` flights of one condition; one dict of values per episode, and episode 0's trace
+    (`trace`): the simulator's truth and the node's estimate, per step."""
     cfg = SimConfig(
         listen="tcp:127.0.0.1:0",
         episodes=episodes,
@@ -57,6 +67,8 @@ def fly(fault: str, duration_s: float, start: str, rate_hz: int, episodes: int) 
         lockstep_timeout_s=5.0,
         start=start,
         sensor_faults=parse_faults(fault),
+        imu_noise=imu_noise,
+        record_truth=trace,
     )
     records = []
     sim = Simulator(cfg, on_episode=records.append)
@@ -92,7 +104,19 @@ def fly(fault: str, duration_s: float, start: str, rate_hz: int, episodes: int) 
                 "phases": [h[2].split(":")[0] for h in log.handovers if h[1] == "state-loss"],
             }
         )
-    return rows
+    if not trace:
+        return rows, None
+    truth = records[0].truth
+    return rows, {
+        "t_s": [round(t, 4) for t, _ in truth],
+        "z_m": [round(s[2], 4) for _, s in truth],
+        "vz_mps": [round(s[5], 4) for _, s in truth],
+        "tilt_deg": [round(max(abs(s[6]), abs(s[7])) * 57.29577951308232, 3) for _, s in truth],
+        "estimate_t_s": [round(t - logs[0].t[0], 4) for t, _ in logs[0].estimates],
+        "estimate_z_m": [round(e[2], 4) for _, e in logs[0].estimates],
+        "estimate_vz_mps": [round(e[5], 4) for _, e in logs[0].estimates],
+        "phases": [[round(t - logs[0].t[0], 3), why] for t, kind, why in logs[0].handovers if kind == "state-loss"],
+    }
 
 
 def _json_safe(v):
@@ -114,20 +138,23 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes < 1:
         p.error("--episodes must be at least 1")
     t0 = time.perf_counter()
-    cells = []
-    for rate in RATES_HZ:
-        for name, (fault, duration, start) in CONDITIONS.items():
-            c0 = time.perf_counter()
-            rows = fly(fault, duration, start, rate, args.episodes)
-            cells.append(
-                {"condition": name, "fault": fault, "flight_s": duration, "start": start, "rate_hz": rate}
-                | {"wall_s": time.perf_counter() - c0, "episodes": rows}
-            )
-            print(
-                f"{name:>20} at {rate} Hz: {sum(r['hover_rule'] for r in rows)}/{len(rows)} hover rule, "
-                f"{sum(r['crashed'] for r in rows)} crashed, {time.perf_counter() - c0:.0f} s",
-                flush=True,
-            )
+    cells, trace = [], None
+    for imu, noisy in IMUS.items():
+        for rate in RATES_HZ:
+            for name, (fault, duration, start) in CONDITIONS.items():
+                c0 = time.perf_counter()
+                traced = (name, rate, imu) == TRACED
+                rows, tr = fly(fault, duration, start, rate, args.episodes, noisy, trace=traced)
+                trace = tr if traced else trace
+                cells.append(
+                    {"condition": name, "fault": fault, "flight_s": duration, "start": start, "rate_hz": rate}
+                    | {"imu": imu, "wall_s": time.perf_counter() - c0, "episodes": rows}
+                )
+                print(
+                    f"{name:>20} at {rate} Hz, {imu} IMU: {sum(r['hover_rule'] for r in rows)}/{len(rows)} hover "
+                    f"rule, {sum(r['crashed'] for r in rows)} crashed, {time.perf_counter() - c0:.0f} s",
+                    flush=True,
+                )
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     out = {
         "command": "benchmarks/state_loss.py " + " ".join(argv if argv is not None else sys.argv[1:]),
@@ -135,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         "machine": f"{platform.machine()}, {platform.python_version()}",
         "wall_s": time.perf_counter() - t0,
         "cells": cells,
+        "trace": {"condition": TRACED[0], "rate_hz": TRACED[1], "imu": TRACED[2], "episode": 0} | trace,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(_json_safe(out), indent=1, allow_nan=False) + "\n")

@@ -35,7 +35,7 @@ The rules, and where they come from (commands: `commands`):
 Parameters: `param_protocol`; missions: `mission_protocol` (the transfer) and `modes.Mission` (where
 the flight is in it); the flight modes: `modes`, their legs flown by `navigator`; the moving target
 and the land detector: `setpoint`; telemetry: `streams`. Message dispatch: `Commander.HANDLERS`, a
-table of functions, as the node's (`node._Flight.HANDLERS`); commands: `commands.COMMANDS`, likewise.
+table of functions, as the node's (`flight.Flight.HANDLERS`); commands: `commands.COMMANDS`, likewise.
 """
 
 from __future__ import annotations
@@ -497,4 +497,4 @@ class Commander:
         "MISSION_CLEAR_ALL": _on_mission,
     }
     """Message type → handler (a function of the commander and the message), as the node dispatches
-    (`node._Flight.HANDLERS`); types not here are counted as dropped (`unexpected_<type>`)."""
+    (`flight.Flight.HANDLERS`); types not here are counted as dropped (`unexpected_<type>`)."""

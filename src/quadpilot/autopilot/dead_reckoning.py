@@ -18,6 +18,13 @@ every step's HIL_SENSOR, so it does a small version of the same, started from th
 - horizontal position and velocity: the last state's, propagated with the accelerometer (the caller
   bounds how long it believes them: `autopilot.state_loss`).
 
+Both IMU sensors have biases (a turn-on offset and a slow walk: 20 mg and 0.5 °/s for the ADIS16448
+PX4's SITL simulates); levelled on a biased accelerometer, a vehicle that believes itself level drifts
+sideways at the bias. So while valid states arrive the node learns the biases, as PX4's EKF2 does
+while it has position and velocity aiding (`ImuCalibration`): the gyro against the attitude's change
+between two states, the accelerometer against the velocity's change plus gravity, each averaged over
+`CALIBRATION_TAU_S`. The estimate subtracts them.
+
 The body rates are the gyro's, as always. An implausible sample (a value that is not finite, or
 beyond what any IMU reports) is not used: the last good one is held, and counted. An implausible
 estimate (`plausible` False: tilted beyond `MAX_TILT_RAD`, or the barometer and the estimate apart
@@ -51,6 +58,73 @@ PRESSURE_ALT_UPDATED = 0x800
 """HIL_SENSOR fields_updated bit of pressure_alt (MAVLink HIL_SENSOR_UPDATED_PRESSURE_ALT)."""
 
 
+CALIBRATION_TAU_S = 2.0
+"""s over which the IMU biases are averaged while states arrive."""
+CALIBRATION_MAX_DT_S = 0.05
+"""s: two states further apart than this teach nothing (a gap, a dropout)."""
+
+
+def _rotation_rows(roll: float, pitch: float, yaw: float) -> tuple:
+    """`core.frames.euler_to_rotmat` of one attitude as three row tuples, in scalar arithmetic (this
+    runs every step while states arrive, where NumPy's per-call cost on a 3×3 would double the node's)."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    sy, cy = math.sin(yaw), math.cos(yaw)
+    return (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+
+
+class ImuCalibration:
+    """The gyro's and the accelerometer's biases (body FLU), learned from HIL_SENSOR against the states."""
+
+    def __init__(self, gravity: float = 9.81) -> None:
+        self.gravity = float(gravity)
+        self._gyro_bias = [0.0, 0.0, 0.0]
+        self._accel_bias = [0.0, 0.0, 0.0]
+        self.samples = 0
+        self._prev: tuple | None = None
+
+    @property
+    def gyro_bias(self) -> np.ndarray:
+        return np.array(self._gyro_bias)
+
+    @property
+    def accel_bias(self) -> np.ndarray:
+        return np.array(self._accel_bias)
+
+    def update(self, state: list, time_usec: int, msg) -> None:
+        """One step with both its state (12 floats, ENU/FLU) and its HIL_SENSOR."""
+        rot = _rotation_rows(state[ROLL], state[PITCH], state[YAW])
+        vx, vy, vz = state[VEL]
+        prev, self._prev = self._prev, (int(time_usec), rot, vx, vy, vz)
+        if prev is None:
+            return
+        dt = (int(time_usec) - prev[0]) * 1e-6
+        if not 0.0 < dt <= CALIBRATION_MAX_DT_S:
+            return
+        gyro = (float(msg.xgyro), -float(msg.ygyro), -float(msg.zgyro))
+        acc = (float(msg.xacc), -float(msg.yacc), -float(msg.zacc))
+        if not math.isfinite(sum(gyro) + sum(acc)):
+            return
+        p = prev[1]
+        # D = P^T R, the rotation between the two states in the body frame; its skew part / dt is the rate
+        d = [[p[0][i] * rot[0][j] + p[1][i] * rot[1][j] + p[2][i] * rot[2][j] for j in range(3)] for i in range(3)]
+        h = 0.5 / dt
+        rates = ((d[2][1] - d[1][2]) * h, (d[0][2] - d[2][0]) * h, (d[1][0] - d[0][1]) * h)
+        fx, fy, fz = (vx - prev[2]) / dt, (vy - prev[3]) / dt, (vz - prev[4]) / dt + self.gravity
+        # what an ideal accelerometer reads: R^T f, body frame
+        specific = [rot[0][i] * fx + rot[1][i] * fy + rot[2][i] * fz for i in range(3)]
+        k = min(1.0, dt / CALIBRATION_TAU_S)
+        gb, ab = self._gyro_bias, self._accel_bias
+        for i in range(3):
+            gb[i] += k * (gyro[i] - rates[i] - gb[i])
+            ab[i] += k * (acc[i] - specific[i] - ab[i])
+        self.samples += 1
+
+
 def _rodrigues(w: np.ndarray, dt: float) -> np.ndarray:
     """exp([w·dt]×): the rotation by the angle |w|·dt about w."""
     theta = math.sqrt(float(w @ w)) * dt
@@ -79,8 +153,17 @@ def baro_from_hil_sensor(msg) -> float | None:
 class InertialEstimate:
     """The 12-state, propagated from a last valid state with the IMU and the barometer."""
 
-    def __init__(self, state: list, time_usec: int, gravity: float = 9.81, baro_alt: float | None = None) -> None:
+    def __init__(
+        self,
+        state: list,
+        time_usec: int,
+        gravity: float = 9.81,
+        baro_alt: float | None = None,
+        calibration: ImuCalibration | None = None,
+    ) -> None:
         s = np.asarray(state, np.float64)
+        self.gyro_bias = np.zeros(3) if calibration is None else calibration.gyro_bias.copy()
+        self.accel_bias = np.zeros(3) if calibration is None else calibration.accel_bias.copy()
         self.rot = euler_to_rotmat(s[ROLL], s[PITCH], s[YAW])
         self.pos = s[POS].copy()
         self.vel = s[VEL].copy()
@@ -109,6 +192,7 @@ class InertialEstimate:
             return
         self.time_usec = t
         gyro, acc = imu_from_hil_sensor(msg)
+        gyro, acc = gyro - self.gyro_bias, acc - self.accel_bias
         if (
             np.all(np.isfinite(gyro))
             and np.all(np.isfinite(acc))

@@ -33,6 +33,8 @@ class EpisodeLog:
     replies: int = 0
     """HIL_ACTUATOR_CONTROLS sent in answer to a step, including blind ones before any valid state
     (not logged: nothing to log them against)."""
+    estimates: list = field(default_factory=list)
+    """(simulated time s, the node's estimated 12-state) of every step flown without its state."""
     state_lost_steps: int = 0
     """Steps answered without their state (HIL_SENSOR alone), on the estimate of `autopilot.state_loss`."""
     blind_replies: int = 0

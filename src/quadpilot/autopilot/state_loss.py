@@ -36,7 +36,7 @@ from quadpilot.core.params import NUM_MOTORS, VehicleParams
 from quadpilot.core.state import PITCH, RATES, ROLL, VEL, YAW, Z
 from quadpilot.runtime.fallback import FallbackController
 
-from .dead_reckoning import InertialEstimate, baro_from_hil_sensor
+from .dead_reckoning import ImuCalibration, InertialEstimate, baro_from_hil_sensor
 
 PHASES = ("policy", "hold", "descend", "landed")
 LAND_ARM_S = 3.0
@@ -78,12 +78,20 @@ class StateLoss:
     """One loss of the state stream: its estimate, its phase and the commands of its hold and descent."""
 
     def __init__(
-        self, cfg: StateLossConfig, vehicle: VehicleParams, last_state: list, last_state_us: int, sensor, step_s: float
+        self,
+        cfg: StateLossConfig,
+        vehicle: VehicleParams,
+        last_state: list,
+        last_state_us: int,
+        sensor,
+        step_s: float,
+        calibration: ImuCalibration | None = None,
     ) -> None:
         self.cfg = cfg
         self.vehicle = vehicle
         self.since_us = int(last_state_us)
-        self.estimate = InertialEstimate(last_state, last_state_us, vehicle.gravity, baro_from_hil_sensor(sensor))
+        baro = baro_from_hil_sensor(sensor)
+        self.estimate = InertialEstimate(last_state, last_state_us, vehicle.gravity, baro, calibration)
         self.phase = "policy"
         self.hold_z = float(last_state[Z])
         self.step_s = float(step_s)

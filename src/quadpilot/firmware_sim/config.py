@@ -77,6 +77,9 @@ class SimConfig:
     """Also send ODOMETRY each step: the state as an estimator would report it (the vehicle's
     `core.sensor_noise` estimator model: cm-level position, velocity and attitude errors), which the
     node then flies on instead of the ground truth; HIL_STATE_QUATERNION stays exact (judging)."""
+    record_truth: bool = False
+    """Keep the ground truth of every step in the episode's record (`EpisodeRecord.truth`): what a
+    benchmark plots when the node itself had no state to log."""
     dt: float = dynamics.DT
     """s, simulation step (0.01 s, the control step the policies were trained at)."""
     task: str = "hover"

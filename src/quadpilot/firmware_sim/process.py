@@ -153,6 +153,7 @@ class Simulator:
         datagram that made it the peer)."""
         cfg = self.cfg
         ep = EpisodeTally(k, link.peer_label)
+        ep.truth = [] if cfg.record_truth else None
         state0, rng = cfg.start_state(k)
         plant = Plant(cfg.vehicle_params, cfg.dt, cfg.wind, cfg.gust, cfg.gust_tau_s, rng)
         self._target = cfg.area_centre(k)
@@ -201,6 +202,7 @@ class Simulator:
             touchdown=ep.touchdown,
             max_descent_speed=ep.max_descent_speed,
             motors_off_airborne_steps=ep.motors_off_airborne_steps,
+            truth=ep.truth,
         )
 
     def _await_heartbeat(self, link, ep: EpisodeTally) -> str | None:
@@ -233,6 +235,8 @@ class Simulator:
             if not np.any(command):
                 ep.motors_off_airborne_steps += 1
         n += 1
+        if ep.truth is not None:
+            ep.truth.append((n * self.cfg.dt, plant.state.tolist()))
         if n == self._impulse_step:
             plant.hit(self.cfg.impulse[0])  # before this step's messages: the peer sees it next
         ep.steps_done = n

@@ -52,6 +52,8 @@ class EpisodeRecord:
     """m/s, the fastest the vehicle moved down in the air over the episode."""
     motors_off_airborne_steps: int = 0
     """Steps flown with every motor commanded off while the vehicle was in the air (a cut in the air)."""
+    truth: list | None = None
+    """With `SimConfig.record_truth`: (simulated time s, 12-state) after every step; else None."""
 
     def summary(self) -> str:
         dropped = sum(self.dropped.values())
@@ -105,3 +107,4 @@ class EpisodeTally:
         self.touchdown: tuple[int, float, float] | None = None
         self.max_descent_speed = 0.0
         self.motors_off_airborne_steps = 0
+        self.truth: list | None = None
