@@ -22,7 +22,7 @@ these heights, moves the wind by millimetres per second over a flight of seconds
 `--state-dropout START+DURATION` (seconds, e.g. `2+0.5`, `2+inf`): the steps that start in
 [START, START + DURATION) send no HIL_STATE_QUATERNION (the vehicle's `_send_hil_state_quaternion`
 is wrapped on the instance to do nothing then), HIL_SENSOR goes out as always: quad-sitl's
-`state-dropout` fault. `--height M`: the start height (5 m by default).
+`state-dropout` fault. `--height M`: the start height (5 m by default; 0: on the ground).
 
 What it measures, without touching RotorPy's code path: the connection's `recv_match` is wrapped to
 record what RotorPy's step got back and how long it waited. OUT.json holds per step the time_usec
@@ -107,7 +107,7 @@ def _dropout(text: str | None) -> tuple[float, float]:
 
 
 drop_from, drop_until = _dropout(args.state_dropout)
-if not (args.height > 0.0):
+if not (args.height >= 0.0):  # 0: on the ground (RotorPy's ground is z = 0)
     raise SystemExit(f"rotorpy_px4.py: --height {args.height!r}: expected metres above the ground")
 np.random.seed(args.seed)  # noqa: NPY002 - RotorPy's IMU noise draws from NumPy's global generator
 START = {
