@@ -26,6 +26,7 @@ import json
 import os
 import re
 import shutil
+import struct
 import subprocess
 import sys
 import threading
@@ -108,6 +109,11 @@ def read_tlog(path: Path) -> list:
     return got
 
 
+def ftp_header(m) -> tuple:
+    """seq_number, session, opcode, size, req_opcode, burst_complete of a FILE_TRANSFER_PROTOCOL."""
+    return struct.unpack_from("<HBBBBB", bytes(m.payload))
+
+
 def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path):
     exe = mavproxy_path()
     if exe is None:
@@ -120,8 +126,11 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
     seen = {}
     try:
         console.expect(r"Detected vehicle 1:1", 20)
-        # MAVProxy asks for the parameters by MAVLink FTP first, then (no answer) by PARAM_REQUEST_LIST
-        seen["params"] = int(console.expect(r"Received (\d+) parameters", 30).group(1))
+        seen["detected_s"] = time.monotonic() - t0
+        # MAVProxy asks for the parameters by MAVLink FTP first (@PARAM/param.pck), then, if that
+        # fails, by PARAM_REQUEST_LIST
+        got = console.expect(r"Received (\d+) parameters( \(ftp\))?", 30)
+        seen["params"], seen["params_by"] = int(got.group(1)), "ftp" if got.group(2) else "param protocol"
         seen["params_s"] = time.monotonic() - t0
         console.send("param show MIS_TAKEOFF_ALT")
         seen["shown"] = float(console.expect(r"MIS_TAKEOFF_ALT\s+(\S+)", 5).group(1))
@@ -190,6 +199,18 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
     (c,) = json.loads(out.read_text())["commanded"]
     print(c)
     assert not c["armed"] and c["flown"] and c["landed_state"] == "ON_GROUND", c
-    # all MAVProxy sent was understood but its MAVLink FTP (parameters by file, which the vehicle
-    # does not serve) and REQUEST_DATA_STREAM (MAVLink 1 stream rates, which PX4 ignores too)
-    assert c["gcs_dropped"].keys() <= {"unexpected_file_transfer_protocol", "unexpected_request_data_stream"}, c
+    # all MAVProxy sent was understood but REQUEST_DATA_STREAM (MAVLink 1 stream rates, which PX4
+    # ignores too)
+    assert c["gcs_dropped"].keys() <= {"unexpected_request_data_stream"}, c
+    # every MAVLink FTP request MAVProxy sent was answered at once: each has its answer (sequence
+    # number + 1, the request's opcode), and none was sent again (MAVProxy repeats a request only
+    # when no answer came within its retry time, at least 1 s, and gives up on the parameter file
+    # after 10 repeats: the 10 s MAVProxy waited before its parameters when the vehicle was silent)
+    ftp = [m for m in got if m.get_type() == "FILE_TRANSFER_PROTOCOL"]
+    requests = [ftp_header(m) for m in ftp if m.get_srcSystem() == 255]
+    answers = {(h[0], h[4]) for h in (ftp_header(m) for m in ftp if m.get_srcSystem() == 1)}
+    print(f"{len(requests)} FTP requests, {len(answers)} answered")
+    assert requests, "MAVProxy sent no MAVLink FTP request: it no longer asks for the parameter file"
+    assert all(((seq + 1) & 0xFFFF, op) in answers for seq, _, op, *_ in requests), (requests, answers)
+    assert len({(seq, session, op) for seq, session, op, *_ in requests}) == len(requests), requests
+    assert not [line for line in transcript.splitlines() if "FTP: request timed out" in line]

@@ -32,9 +32,9 @@ The rules, and where they come from (commands: `commands`):
   resumes what was being flown; after the action the ground station takes over with a new command.
   Which clock: the one the owner passes (simulated time, which runs with the wall clock in a
   real-time simulation).
-Parameters: `param_protocol`; missions: `mission_protocol` (the transfer) and `modes.Mission` (where
-the flight is in it); the flight modes: `modes`, their legs flown by `navigator`; the moving target
-and the land detector: `setpoint`; telemetry: `streams`. Message dispatch: `Commander.HANDLERS`, a
+Parameters: `param_protocol`; files (MAVLink FTP): `ftp_protocol`; missions: `mission_protocol` (the
+transfer) and `modes.Mission` (where the flight is in it); the flight modes: `modes`, their legs
+flown by `navigator`; the moving target and the land detector: `setpoint`; telemetry: `streams`. Message dispatch: `Commander.HANDLERS`, a
 table of functions, as the node's (`node._Flight.HANDLERS`); commands: `commands.COMMANDS`, likewise.
 """
 
@@ -50,7 +50,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.core.state import POS, RATES, STATE_DIM, VEL, YAW, Z
 from quadpilot.link.frames import Home
 
-from . import commands, mission_protocol, streams
+from . import commands, ftp_protocol, mission_protocol, streams
 from .commands import ACCEPTED, DENIED, TEMP_REJECTED, enu_yaw
 from .modes import HOLD, MISSION, MODE_NAMES, POSCTL, Land, Mission, Mode, Return
 from .navigator import Navigator
@@ -131,6 +131,7 @@ class Commander:
         self.failsafe: str | None = None  # None, "hold" (waiting COM_FAIL_ACT_T), "action" or "motors cut"
         self.failsafe_at = 0.0
         self.dropped: Counter = Counter()
+        self.ftp = ftp_protocol.FtpServer(self.mav, dropped=self.dropped)
         self.received = 0
         self.recent_commands: dict = {}  # (source, command, is COMMAND_INT) → (arguments, result, time)
         self._out: list = []
@@ -255,6 +256,9 @@ class Commander:
         for t in texts:
             self.text(t, M.MAV_SEVERITY_WARNING)
         self._mission_changed()
+
+    def _on_ftp(self, msg) -> None:
+        self._out += self.ftp.handle(msg, self.now)
 
     # --- arming, modes, missions --------------------------------------------------------------------
     def armable(self) -> str | None:
@@ -420,6 +424,7 @@ class Commander:
         self.motors = self.armed and not (self.landed and not self.nav.taking_off)
         self.motors = self.motors and not (self.nav.landing and self.detector.contact)
         self.missions.locked = self.armed and self.mode == MISSION and self.mission.active
+        self.ftp.tick(now)
         replies, texts = self.missions.tick(now)
         self._out += replies
         for t in texts:
@@ -495,6 +500,7 @@ class Commander:
         "MISSION_REQUEST": _on_mission,
         "MISSION_ACK": _on_mission,
         "MISSION_CLEAR_ALL": _on_mission,
+        "FILE_TRANSFER_PROTOCOL": _on_ftp,
     }
     """Message type → handler (a function of the commander and the message), as the node dispatches
     (`node._Flight.HANDLERS`); types not here are counted as dropped (`unexpected_<type>`)."""

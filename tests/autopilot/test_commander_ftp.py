@@ -1,0 +1,192 @@
+"""MAVLink FTP through packed MAVLink bytes: every request answered at once (ACK, or NAK with the
+error code), sessions, sequence numbers, burst reads, the in-memory SD card and its bounds."""
+
+import errno
+import struct
+import zlib
+
+import pytest
+from commander_gcs import GCS_COMPONENT, GCS_SYSTEM, Gcs, of_type
+
+from quadpilot.autopilot import ftp_protocol as F
+
+
+class Ftp:
+    """A client speaking FILE_TRANSFER_PROTOCOL to the commander, one request at a time."""
+
+    def __init__(self, g: Gcs | None = None) -> None:
+        self.g = g or Gcs()
+        self.seq = 0
+
+    def request(self, opcode, session=0, data=b"", offset=0, size=None, seq=None) -> list:
+        seq = self.seq if seq is None else seq
+        self.seq = seq + 1
+        head = F.HEADER.pack(seq, session, opcode, len(data) if size is None else size, 0, 0, 0, offset)
+        payload = list((head + data).ljust(F.PAYLOAD_LEN, b"\0"))
+        out = of_type(self.g.send(self.g.tx.file_transfer_protocol_encode(0, 1, 1, payload)), "FILE_TRANSFER_PROTOCOL")
+        return [reply(m) for m in out]
+
+    def one(self, *a, **k) -> dict:
+        (r,) = self.request(*a, **k)
+        return r
+
+
+def reply(m) -> dict:
+    assert (m.target_system, m.target_component) == (GCS_SYSTEM, GCS_COMPONENT)
+    raw = bytes(m.payload)
+    seq, session, opcode, size, req, burst, _, offset = F.HEADER.unpack_from(raw)
+    return dict(seq=seq, session=session, opcode=opcode, req=req, burst=burst, offset=offset, data=raw[12 : 12 + size])
+
+
+def nak(r: dict) -> tuple:
+    assert r["opcode"] == F.OP_NAK, r
+    return tuple(r["data"])
+
+
+def upload(c: Ftp, path: str, content: bytes, block: int = 239) -> int:
+    r = c.one(F.OP_CREATE_FILE, data=path.encode())
+    assert r["opcode"] == F.OP_ACK, r
+    s = r["session"]
+    for off in range(0, len(content), block):
+        w = c.one(F.OP_WRITE_FILE, s, content[off : off + block], off)
+        assert w["opcode"] == F.OP_ACK and w["offset"] == off, w
+    assert c.one(F.OP_TERMINATE_SESSION, s)["opcode"] == F.OP_ACK
+    return s
+
+
+def download(c: Ftp, path: str) -> bytes:
+    r = c.one(F.OP_OPEN_FILE_RO, data=path.encode())
+    assert r["opcode"] == F.OP_ACK, r
+    s, size = r["session"], struct.unpack("<I", r["data"])[0]
+    got, off = b"", 0
+    while True:
+        packets = c.request(F.OP_BURST_READ_FILE, s, size=F.MAX_DATA, offset=off)
+        for p in packets:
+            if p["opcode"] == F.OP_NAK:
+                assert nak(p) == (F.ERR_EOF,)
+                break
+            assert p["offset"] == len(got)
+            got += p["data"]
+        last = packets[-1]
+        if last["opcode"] == F.OP_NAK or len(last["data"]) < F.MAX_DATA:
+            break
+        assert last["burst"] == 1
+        off = len(got)
+    c.one(F.OP_TERMINATE_SESSION, s)
+    assert len(got) == size
+    return got
+
+
+@pytest.mark.parametrize("opcode", range(0, 256))
+def test_every_opcode_is_answered_once_with_the_next_sequence_number(opcode):
+    c = Ftp()
+    out = c.request(opcode, session=7, seq=41)
+    if opcode in (F.OP_ACK, F.OP_NAK):  # an answer sent to the vehicle is not a request
+        assert out == [] and c.g.commander.dropped["ftp_reply_to_vehicle"] == 1
+        return
+    assert len(out) == 1, out
+    r = out[0]
+    assert r["seq"] == 42 and r["req"] == opcode
+    assert r["opcode"] in (F.OP_ACK, F.OP_NAK)
+    if opcode > F.OP_BURST_READ_FILE:
+        assert nak(r) == (F.ERR_UNKNOWN_COMMAND,)
+    assert not [k for k in c.g.commander.dropped if k.startswith("unexpected")]
+
+
+def test_mavproxy_first_request_for_the_parameter_file_and_a_missing_file():
+    c = Ftp()
+    # the commander alone (no parameter file given to its server here): a missing file
+    c.g.commander.ftp.param_file = None
+    r = c.one(F.OP_OPEN_FILE_RO, session=137, data=b"@PARAM/param.pck?withdefaults=1")
+    assert nak(r) == (F.ERR_FILE_NOT_FOUND,) and r["session"] == 137 and r["seq"] == 1
+    assert nak(c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/nothing.bin")) == (F.ERR_FILE_NOT_FOUND,)
+    assert nak(c.one(F.OP_TERMINATE_SESSION, session=137)) == (F.ERR_INVALID_SESSION,)
+    assert nak(c.one(F.OP_READ_FILE, session=3)) == (F.ERR_INVALID_SESSION,)
+    assert nak(c.one(F.OP_BURST_READ_FILE, session=3)) == (F.ERR_INVALID_SESSION,)
+
+
+def test_bad_fields_are_refused_with_their_code():
+    c = Ftp()
+    assert nak(c.one(F.OP_OPEN_FILE_RO, data=b"x", size=240)) == (F.ERR_INVALID_DATA_SIZE,)
+    assert nak(c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/../etc/passwd")) == (F.ERR_FAIL_ERRNO, errno.EINVAL)
+    assert nak(c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/\xff")) == (F.ERR_FAIL_ERRNO, errno.EINVAL)
+    assert nak(c.one(F.OP_CREATE_FILE, data=b"/etc/passwd")) == (F.ERR_FILE_PROTECTED,)
+    assert nak(c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/no/dir.bin")) == (F.ERR_FILE_NOT_FOUND,)
+    assert nak(c.one(F.OP_LIST_DIRECTORY, data=b"/nowhere")) == (F.ERR_FILE_NOT_FOUND,)
+    assert nak(c.one(F.OP_REMOVE_DIRECTORY, data=b"/fs/microsd/raptor")) == (F.ERR_FILE_PROTECTED,)
+    # a payload shorter than the header (a truncated message pymavlink pads) is still answered
+    g = c.g
+    out = of_type(g.send(g.tx.file_transfer_protocol_encode(0, 1, 1, [9] * 5 + [0] * 246)), "FILE_TRANSFER_PROTOCOL")
+    assert len(out) == 1
+
+
+def test_upload_download_list_crc_rename_remove():
+    c = Ftp()
+    content = bytes(range(256)) * 9 + b"end"  # 2307 bytes: not a multiple of 239
+    upload(c, "/fs/microsd/raptor/a.bin", content)
+    assert c.g.commander.ftp.finished == ["/fs/microsd/raptor/a.bin"]
+    assert download(c, "/fs/microsd/raptor/a.bin") == content
+    listing = c.one(F.OP_LIST_DIRECTORY, data=b"/fs/microsd/raptor")["data"]
+    assert listing == b"Fa.bin\t2307\0"
+    assert nak(c.one(F.OP_LIST_DIRECTORY, data=b"/fs/microsd/raptor", offset=1)) == (F.ERR_EOF,)
+    assert c.one(F.OP_LIST_DIRECTORY, data=b"/fs/microsd")["data"] == b"Draptor\0"
+    crc = struct.unpack("<I", c.one(F.OP_CALC_FILE_CRC32, data=b"/fs/microsd/raptor/a.bin")["data"])[0]
+    assert crc == zlib.crc32(content, 0xFFFFFFFF) ^ 0xFFFFFFFF  # PX4's crc32part
+    assert c.one(F.OP_RENAME, data=b"/fs/microsd/raptor/a.bin\0/fs/microsd/raptor/b.bin")["opcode"] == F.OP_ACK
+    assert c.one(F.OP_REMOVE_FILE, data=b"/fs/microsd/raptor/b.bin")["opcode"] == F.OP_ACK
+    assert nak(c.one(F.OP_REMOVE_FILE, data=b"/fs/microsd/raptor/b.bin")) == (F.ERR_FILE_NOT_FOUND,)
+    assert c.one(F.OP_CREATE_DIRECTORY, data=b"/fs/microsd/logs")["opcode"] == F.OP_ACK
+    assert nak(c.one(F.OP_CREATE_DIRECTORY, data=b"/fs/microsd/logs")) == (F.ERR_FILE_EXISTS,)
+    assert c.one(F.OP_REMOVE_DIRECTORY, data=b"/fs/microsd/logs")["opcode"] == F.OP_ACK
+
+
+def test_a_file_ending_on_a_packet_boundary_ends_its_burst_with_eof():
+    c = Ftp()
+    upload(c, "/fs/microsd/x", b"a" * (2 * F.MAX_DATA))
+    s = c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/x")["session"]
+    packets = c.request(F.OP_BURST_READ_FILE, s, size=F.MAX_DATA, seq=100)
+    assert [p["seq"] for p in packets] == [101, 102, 103]
+    assert [p["opcode"] for p in packets] == [F.OP_ACK, F.OP_ACK, F.OP_NAK] and nak(packets[-1]) == (F.ERR_EOF,)
+    assert nak(c.one(F.OP_READ_FILE, s, offset=2 * F.MAX_DATA)) == (F.ERR_EOF,)
+    assert c.one(F.OP_READ_FILE, s, offset=10, size=5)["data"] == b"aaaaa"  # the size asked for
+
+
+def test_a_long_burst_stops_after_its_packets_and_goes_on_when_asked():
+    c = Ftp()
+    upload(c, "/fs/microsd/big", bytes(F.MAX_DATA * (F.BURST_PACKETS + 3)))
+    s = c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/big")["session"]
+    first = c.request(F.OP_BURST_READ_FILE, s, size=F.MAX_DATA)
+    assert len(first) == F.BURST_PACKETS and [p["burst"] for p in first] == [0] * (F.BURST_PACKETS - 1) + [1]
+
+
+def test_sessions_are_bounded_and_keep_the_id_asked_for_when_free():
+    c = Ftp()
+    upload(c, "/fs/microsd/f", b"abc")
+    ids = [c.one(F.OP_OPEN_FILE_RO, session=9, data=b"/fs/microsd/f")["session"] for _ in range(F.MAX_SESSIONS)]
+    assert ids == [9, 0, 1]  # MAVProxy's own id when free, else the lowest free (PX4, MAVSDK read it back)
+    assert nak(c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/f")) == (F.ERR_NO_SESSIONS_AVAILABLE,)
+    assert c.one(F.OP_RESET_SESSIONS)["opcode"] == F.OP_ACK
+    s = c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/f")["session"]
+    c.g.run(F.IDLE_CLOSE_S + 0.5)  # idle sessions close (PX4: 10 s)
+    assert nak(c.one(F.OP_READ_FILE, s)) == (F.ERR_INVALID_SESSION,)
+
+
+def test_a_repeated_request_gets_the_same_answer_and_is_not_done_twice():
+    c = Ftp()
+    first = c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/r", seq=5)
+    again = c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/r", seq=5)  # the ACK was lost: sent again
+    assert again == first and len(c.g.commander.ftp.sessions) == 1
+
+
+def test_sizes_are_bounded():
+    c = Ftp()
+    s = c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/huge")["session"]
+    assert nak(c.one(F.OP_WRITE_FILE, s, b"x", F.MAX_FILE_BYTES)) == (F.ERR_FAIL_ERRNO, errno.EFBIG)
+    assert c.one(F.OP_WRITE_FILE, s, b"x", F.MAX_FILE_BYTES - 1)["opcode"] == F.OP_ACK
+    c.one(F.OP_TERMINATE_SESSION, s)
+    for i in range(F.MAX_CARD_BYTES // F.MAX_FILE_BYTES - 1):
+        s = c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/h%d" % i)["session"]
+        c.one(F.OP_WRITE_FILE, s, b"x", F.MAX_FILE_BYTES - 1)
+        c.one(F.OP_TERMINATE_SESSION, s)
+    s = c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/more")["session"]
+    assert nak(c.one(F.OP_WRITE_FILE, s, b"xx", 0)) == (F.ERR_FAIL_ERRNO, errno.ENOSPC)
