@@ -9,6 +9,7 @@ import pytest
 from commander_gcs import GCS_COMPONENT, GCS_SYSTEM, Gcs, of_type
 
 from quadpilot.autopilot import ftp_protocol as F
+from quadpilot.autopilot.param_protocol import INT32, PARAMS
 
 
 class Ftp:
@@ -190,3 +191,28 @@ def test_sizes_are_bounded():
         c.one(F.OP_TERMINATE_SESSION, s)
     s = c.one(F.OP_CREATE_FILE, data=b"/fs/microsd/more")["session"]
     assert nak(c.one(F.OP_WRITE_FILE, s, b"xx", 0)) == (F.ERR_FAIL_ERRNO, errno.ENOSPC)
+
+
+def f32(x: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+
+@pytest.mark.parametrize("query", ["", "?withdefaults=1"])
+def test_the_parameter_file_is_the_table_in_mavproxys_reading(query):
+    from MAVProxy.modules.lib.param_ftp import ftp_param_decode  # MAVProxy's own decoder (dev extra)
+
+    c = Ftp()
+    c.g.param_set("MIS_TAKEOFF_ALT", 3.0)
+    c.g.param_set("NAV_DLL_ACT", 1.0)  # a whole float for an INT32: how MAVProxy sets it after the file
+    pdata = ftp_param_decode(download(c, "@PARAM/param.pck" + query))
+    assert pdata is not None
+    table = c.g.commander.params
+    assert [(n.decode(), v) for n, v, _ in pdata.params] == [(p.name, f32(table[p.name])) for p in PARAMS]
+    assert [t for _, _, t in pdata.params] == [3 if p.kind == INT32 else 4 for p in PARAMS]
+    if query:
+        defaults = {n.decode(): v for n, v, _ in pdata.defaults}
+        assert defaults == {p.name: f32(p.default) for p in PARAMS}
+    else:
+        assert pdata.defaults is None
+    assert nak(c.one(F.OP_CREATE_FILE, data=b"@PARAM/param.pck")) == (F.ERR_FILE_PROTECTED,)
+    assert nak(c.one(F.OP_OPEN_FILE_RO, data=b"@PARAM/other.pck")) == (F.ERR_FILE_NOT_FOUND,)

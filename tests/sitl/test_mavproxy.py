@@ -168,6 +168,7 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
 
     # MAVProxy's side
     assert seen["params"] == len(params.PARAMS)
+    assert seen["params_by"] == "ftp"  # @PARAM/param.pck, the table in one transfer
     assert seen["shown"] == 2.5 and seen["shown_after_set"] == TAKEOFF_ALT
     assert {"LOITER", "TAKEOFF", "MISSION", "RTL", "LAND", "POSCTL"} <= set(seen["modes"])
     assert seen["mode_loiter"] == "ERROR in command", "MAVProxy's `mode NAME` works for PX4 now: fly with it"
@@ -181,7 +182,9 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
     assert (M.MAV_CMD_NAV_TAKEOFF, M.MAV_RESULT_DENIED) in acks
     assert acks.count((M.MAV_CMD_DO_SET_MODE, M.MAV_RESULT_ACCEPTED)) == 2, acks  # `mode loiter` sent none
     values = [m.param_value for m in sent if m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT"]
-    assert values[0] == 2.5 and values[-1] == TAKEOFF_ALT, values
+    assert values and values[-1] == TAKEOFF_ALT, values  # (2.5 before: MAVProxy read it in the file)
+    asked = [m for m in got if m.get_srcSystem() == 255 and m.get_type() == "PARAM_REQUEST_LIST"]
+    assert not asked, "MAVProxy fell back to PARAM_REQUEST_LIST: the parameter file did not reach it"
     texts = [m.text for m in sent if m.get_type() == "STATUSTEXT"]
     assert any(t.startswith("Takeoff denied: already higher") for t in texts), texts
     truth = np.array(

@@ -34,8 +34,9 @@ The rules, and where they come from (commands: `commands`):
   real-time simulation).
 Parameters: `param_protocol`; files (MAVLink FTP): `ftp_protocol`; missions: `mission_protocol` (the
 transfer) and `modes.Mission` (where the flight is in it); the flight modes: `modes`, their legs
-flown by `navigator`; the moving target and the land detector: `setpoint`; telemetry: `streams`. Message dispatch: `Commander.HANDLERS`, a
-table of functions, as the node's (`node._Flight.HANDLERS`); commands: `commands.COMMANDS`, likewise.
+flown by `navigator`; the moving target and the land detector: `setpoint`; telemetry: `streams`.
+Message dispatch: `Commander.HANDLERS`, a table of functions, as the node's (`node._Flight.HANDLERS`);
+commands: `commands.COMMANDS`, likewise.
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ from . import commands, ftp_protocol, mission_protocol, streams
 from .commands import ACCEPTED, DENIED, TEMP_REJECTED, enu_yaw
 from .modes import HOLD, MISSION, MODE_NAMES, POSCTL, Land, Mission, Mode, Return
 from .navigator import Navigator
-from .param_protocol import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable
+from .param_protocol import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable, param_pack
 from .setpoint import LandDetector, LandLimits, Mover
 
 M = mavlink2
@@ -131,7 +132,7 @@ class Commander:
         self.failsafe: str | None = None  # None, "hold" (waiting COM_FAIL_ACT_T), "action" or "motors cut"
         self.failsafe_at = 0.0
         self.dropped: Counter = Counter()
-        self.ftp = ftp_protocol.FtpServer(self.mav, dropped=self.dropped)
+        self.ftp = ftp_protocol.FtpServer(self.mav, lambda defaults: param_pack(self.params, defaults), self.dropped)
         self.received = 0
         self.recent_commands: dict = {}  # (source, command, is COMMAND_INT) → (arguments, result, time)
         self._out: list = []
