@@ -51,7 +51,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.core.state import POS, RATES, STATE_DIM, VEL, YAW, Z
 from quadpilot.link.frames import Home
 
-from . import commands, ftp_protocol, mission_protocol, streams
+from . import commands, ftp_protocol, mission_protocol, policy_upload, streams
 from .commands import ACCEPTED, DENIED, TEMP_REJECTED, enu_yaw
 from .modes import HOLD, MISSION, MODE_NAMES, POSCTL, Land, Mission, Mode, Return
 from .navigator import Navigator
@@ -132,6 +132,11 @@ class Commander:
         self.failsafe: str | None = None  # None, "hold" (waiting COM_FAIL_ACT_T), "action" or "motors cut"
         self.failsafe_at = 0.0
         self.dropped: Counter = Counter()
+        self.new_policy = None
+        """A policy.tar uploaded and checked (`policy_upload`), for the owner to fly when disarmed."""
+        self.policies: list[dict] = []
+        """Each policy.tar uploaded: when, what the ground station was told, its SHA-256 if good."""
+        self._text_id = 0
         self.ftp = ftp_protocol.FtpServer(self.mav, lambda defaults: param_pack(self.params, defaults), self.dropped)
         self.received = 0
         self.recent_commands: dict = {}  # (source, command, is COMMAND_INT) → (arguments, result, time)
@@ -166,6 +171,20 @@ class Commander:
 
     def text(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
         self._out.append(self.mav.statustext_encode(severity, text.encode()[:50]))
+
+    def long_text(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
+        """A text longer than one STATUSTEXT in chunks of 50 characters sharing an id (MAVLink's
+        STATUSTEXT id and chunk_seq, which MAVSDK puts back together); the last chunk is shorter."""
+        raw = text.encode("ascii", "replace")[: 50 * 20]
+        if len(raw) <= 50:
+            self._out.append(self.mav.statustext_encode(severity, raw))
+            return
+        self._text_id = self._text_id % 0xFFFF + 1
+        chunks = [raw[i : i + 50] for i in range(0, len(raw), 50)]
+        if len(chunks[-1]) == 50:
+            chunks.append(b"")
+        for k, chunk in enumerate(chunks):
+            self._out.append(self.mav.statustext_encode(severity, chunk, self._text_id, k))
 
     def heartbeat(self):
         main, sub = self.mode
@@ -260,6 +279,13 @@ class Commander:
 
     def _on_ftp(self, msg) -> None:
         self._out += self.ftp.handle(msg, self.now)
+        for path in self.ftp.finished:
+            if path == ftp_protocol.POLICY_PATH and path in self.ftp.card.files:
+                tar, said = policy_upload.check_upload(bytes(self.ftp.card.files[path]))
+                self.long_text(said, M.MAV_SEVERITY_INFO if tar else M.MAV_SEVERITY_ERROR)
+                self.policies.append({"at_s": self.now, "text": said, "sha256": tar and tar.sha256})
+                self.new_policy = tar or self.new_policy
+        self.ftp.finished.clear()
 
     # --- arming, modes, missions --------------------------------------------------------------------
     def armable(self) -> str | None:
