@@ -40,11 +40,13 @@ from pymavlink import mavutil
 
 from quadpilot.autopilot import param_protocol as params
 from quadpilot.link.frames import geodetic_to_local
+from quadpilot.sitl import SHIPPED_HOVER
 
 pytestmark = pytest.mark.sitl
 M = mavutil.mavlink
 TAKEOFF_ALT = 3.0  # set with `param set`; the Takeoff mode climbs to it
 ARRIVAL_M = 0.15
+PX4_RAPTOR = SHIPPED_HOVER.parents[1] / "hover_px4_raptor_sih" / "policy.tar"
 
 
 def mavproxy_path() -> str | None:
@@ -110,8 +112,9 @@ def read_tlog(path: Path) -> list:
 
 
 def ftp_header(m) -> tuple:
-    """seq_number, session, opcode, size, req_opcode, burst_complete of a FILE_TRANSFER_PROTOCOL."""
-    return struct.unpack_from("<HBBBBB", bytes(m.payload))
+    """seq_number, session, opcode, size, req_opcode, burst_complete, offset of a FILE_TRANSFER_PROTOCOL."""
+    seq, session, op, size, req, burst, _, offset = struct.unpack_from("<HBBBBBBI", bytes(m.payload))
+    return seq, session, op, size, req, burst, offset
 
 
 def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path):
@@ -132,6 +135,11 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
         got = console.expect(r"Received (\d+) parameters( \(ftp\))?", 30)
         seen["params"], seen["params_by"] = int(got.group(1)), "ftp" if got.group(2) else "param protocol"
         seen["params_s"] = time.monotonic() - t0
+        # MAVProxy's `ftp put` of a policy.tar onto the card: checked; not flown by this vehicle,
+        # which flies an ONNX policy (autopilot/policy_upload.py)
+        console.send(f"ftp put {PX4_RAPTOR} /fs/microsd/raptor/policy.tar")
+        seen["put"] = console.expect(r"policy\.tar checked: .*", 10).group(0)
+        seen["put_loaded"] = console.expect(r"policy\.tar not loaded: .*", 10).group(0)
         console.send("param show MIS_TAKEOFF_ALT")
         seen["shown"] = float(console.expect(r"MIS_TAKEOFF_ALT\s+(\S+)", 5).group(1))
         console.send(f"param set MIS_TAKEOFF_ALT {TAKEOFF_ALT}")
@@ -169,6 +177,7 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
     # MAVProxy's side
     assert seen["params"] == len(params.PARAMS)
     assert seen["params_by"] == "ftp"  # @PARAM/param.pck, the table in one transfer
+    assert seen["put_loaded"].endswith("not flying a RAPTOR policy"), seen["put_loaded"]
     assert seen["shown"] == 2.5 and seen["shown_after_set"] == TAKEOFF_ALT
     assert {"LOITER", "TAKEOFF", "MISSION", "RTL", "LAND", "POSCTL"} <= set(seen["modes"])
     assert seen["mode_loiter"] == "ERROR in command", "MAVProxy's `mode NAME` works for PX4 now: fly with it"
@@ -205,15 +214,17 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
     # all MAVProxy sent was understood but REQUEST_DATA_STREAM (MAVLink 1 stream rates, which PX4
     # ignores too)
     assert c["gcs_dropped"].keys() <= {"unexpected_request_data_stream"}, c
-    # every MAVLink FTP request MAVProxy sent was answered at once: each has its answer (sequence
-    # number + 1, the request's opcode), and none was sent again (MAVProxy repeats a request only
-    # when no answer came within its retry time, at least 1 s, and gives up on the parameter file
-    # after 10 repeats: the 10 s MAVProxy waited before its parameters when the vehicle was silent)
+    # every MAVLink FTP request MAVProxy sent (the parameter file, then the `ftp put`) was answered at
+    # once: each has its answer (sequence number + 1, the request's opcode), and none was sent again
+    # (MAVProxy repeats a request only when no answer came within its retry time, at least 1 s, and
+    # gives up on the parameter file after 10 repeats: the 10 s MAVProxy waited before its
+    # parameters when the vehicle was silent)
     ftp = [m for m in got if m.get_type() == "FILE_TRANSFER_PROTOCOL"]
     requests = [ftp_header(m) for m in ftp if m.get_srcSystem() == 255]
     answers = {(h[0], h[4]) for h in (ftp_header(m) for m in ftp if m.get_srcSystem() == 1)}
     print(f"{len(requests)} FTP requests, {len(answers)} answered")
     assert requests, "MAVProxy sent no MAVLink FTP request: it no longer asks for the parameter file"
     assert all(((seq + 1) & 0xFFFF, op) in answers for seq, _, op, *_ in requests), (requests, answers)
-    assert len({(seq, session, op) for seq, session, op, *_ in requests}) == len(requests), requests
+    # (a request repeated: the same session, opcode and offset again; sequence numbers wrap at 256)
+    assert len({(h[1], h[2], h[6]) for h in requests}) == len(requests), requests
     assert not [line for line in transcript.splitlines() if "FTP: request timed out" in line]

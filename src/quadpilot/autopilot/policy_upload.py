@@ -59,5 +59,6 @@ def fly_uploaded(commander, monitor) -> bool:
     tar, commander.new_policy = commander.new_policy, None
     ok, said = load_uploaded(monitor, tar, POLICY_PATH)
     commander.long_text(said, mavlink2.MAV_SEVERITY_INFO if ok else mavlink2.MAV_SEVERITY_ERROR)
-    commander.policies.append({"at_s": commander.now, "text": said, "sha256": tar.sha256 if ok else None})
+    flown = monitor.policy.info.source_sha256 if ok else None  # what the monitor now flies
+    commander.policies.append({"at_s": commander.now, "text": said, "sha256": flown})
     return ok
