@@ -2,14 +2,19 @@
 error code), sessions, sequence numbers, burst reads, the in-memory SD card and its bounds."""
 
 import errno
+import io
 import struct
+import tarfile
 import zlib
+from pathlib import Path
 
 import pytest
 from commander_gcs import GCS_COMPONENT, GCS_SYSTEM, Gcs, of_type
 
 from quadpilot.autopilot import ftp_protocol as F
 from quadpilot.autopilot.param_protocol import INT32, PARAMS
+from quadpilot.autopilot.policy_upload import fly_uploaded
+from quadpilot.runtime.rltools_tar import policy_tar_bytes, read_policy_tar, sha256_hex
 
 
 class Ftp:
@@ -125,7 +130,6 @@ def test_upload_download_list_crc_rename_remove():
     c = Ftp()
     content = bytes(range(256)) * 9 + b"end"  # 2307 bytes: not a multiple of 239
     upload(c, "/fs/microsd/raptor/a.bin", content)
-    assert c.g.commander.ftp.finished == ["/fs/microsd/raptor/a.bin"]
     assert download(c, "/fs/microsd/raptor/a.bin") == content
     listing = c.one(F.OP_LIST_DIRECTORY, data=b"/fs/microsd/raptor")["data"]
     assert listing == b"Fa.bin\t2307\0"
@@ -216,3 +220,63 @@ def test_the_parameter_file_is_the_table_in_mavproxys_reading(query):
         assert pdata.defaults is None
     assert nak(c.one(F.OP_CREATE_FILE, data=b"@PARAM/param.pck")) == (F.ERR_FILE_PROTECTED,)
     assert nak(c.one(F.OP_OPEN_FILE_RO, data=b"@PARAM/other.pck")) == (F.ERR_FILE_NOT_FOUND,)
+
+
+RAPTOR_TAR = Path(__file__).parents[2] / "models" / "hover_px4_raptor_sih" / "policy.tar"
+
+
+def renamed(name: str) -> bytes:
+    tar = read_policy_tar(RAPTOR_TAR)
+    return policy_tar_bytes(tar.weights, tar.example_in, tar.example_out, name)
+
+
+def statustexts(msgs) -> list:
+    return [(m.text, m.id, m.chunk_seq) for m in of_type(msgs, "STATUSTEXT")]
+
+
+def test_a_damaged_policy_upload_is_refused_with_the_reason_in_statustext_chunks():
+    c = Ftp()
+    data = bytearray(renamed("x"))
+    with tarfile.open(fileobj=io.BytesIO(bytes(data))) as archive:
+        at = archive.getmember("actor/layers/2/biases/parameters/data").offset_data
+    data[at + 3] ^= 0x01  # a weight's exponent bit: the stored example no longer replays
+    c.g.received.clear()
+    upload(c, F.POLICY_PATH, bytes(data))
+    chunks = statustexts(c.g.received)
+    assert (
+        len(chunks) >= 2 and {i for _, i, _ in chunks} != {0} and [k for _, _, k in chunks] == list(range(len(chunks)))
+    )
+    text = "".join(t for t, _, _ in chunks)
+    assert text.startswith("policy.tar refused: ") and "does not replay" in text, text
+    assert c.g.commander.new_policy is None and c.g.commander.policies[-1]["sha256"] is None
+    upload(c, "/fs/microsd/raptor/other.tar", bytes(data))  # another name on the card: not checked
+    assert len(c.g.commander.policies) == 1
+
+
+def test_a_good_policy_upload_is_loaded_into_a_raptor_monitor_only():
+    from quadpilot.runtime.backends import load_policy
+    from quadpilot.runtime.raptor import load_raptor
+    from quadpilot.runtime.safety import SafetyMonitor
+    from quadpilot.sitl import SHIPPED_HOVER
+
+    c = Ftp()
+    good = renamed("new-one")
+    upload(c, F.POLICY_PATH, good)
+    commander = c.g.commander
+    assert statustexts(c.g.received)[-1] == ("policy.tar checked: new-one", 0, 0)
+    assert commander.new_policy is not None and commander.new_policy.checkpoint_name == "new-one"
+    onnx = SafetyMonitor(load_policy(SHIPPED_HOVER, "numpy"))
+    assert not fly_uploaded(commander, onnx) and commander.new_policy is None
+    assert commander.policies[-1]["text"] == "policy.tar not loaded: not flying a RAPTOR policy"
+    upload(c, F.POLICY_PATH, good)
+    monitor = SafetyMonitor(load_raptor(RAPTOR_TAR))
+    before = monitor.policy
+    assert fly_uploaded(commander, monitor)
+    assert monitor.policy is not before and monitor.policy.info.source_sha256 == sha256_hex(good)
+    assert commander.policies[-1] == {
+        "at_s": commander.now,
+        "text": "Policy loaded: new-one",
+        "sha256": sha256_hex(good),
+    }
+    with pytest.raises(ValueError, match="same contract"):
+        monitor.replace_policy(load_policy(SHIPPED_HOVER, "numpy"))
