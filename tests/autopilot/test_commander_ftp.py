@@ -280,3 +280,12 @@ def test_a_good_policy_upload_is_loaded_into_a_raptor_monitor_only():
     }
     with pytest.raises(ValueError, match="same contract"):
         monitor.replace_policy(load_policy(SHIPPED_HOVER, "numpy"))
+
+
+def test_a_request_like_an_earlier_one_but_not_the_last_is_done_again():
+    c = Ftp()
+    upload(c, "/fs/microsd/f", b"abc")
+    first = c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/f", seq=0)
+    assert c.one(F.OP_TERMINATE_SESSION, first["session"], seq=1)["opcode"] == F.OP_ACK
+    again = c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/f", seq=0)  # a client that starts each transfer at 0
+    assert again["opcode"] == F.OP_ACK and len(c.g.commander.ftp.sessions) == 1  # opened, not replayed

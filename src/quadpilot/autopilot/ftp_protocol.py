@@ -26,8 +26,9 @@ Sessions: at most `MAX_SESSIONS` open files (PX4 has one); another open is NAK N
 session's id is the one the request carried when that id is free (MAVProxy picks its own ids and
 routes replies by them, as ArduPilot answers), else the lowest free id (what PX4 and MAVSDK expect:
 the id comes back in the open's ACK). A session idle for `IDLE_CLOSE_S` is closed (PX4: 10 s). A
-request repeated with the same sequence number (its answer was lost) gets the same answer again
-without being done twice (PX4 keeps its last reply for this), for the last few answers without data.
+request repeated byte for byte, sequence number included (its answer was lost), gets the same answer
+again without being done twice, when it is the last request of its sender on that session field and
+its answer carried no data (PX4 keeps its one last reply for this).
 
 Burst read: one BurstReadFile request is answered with up to `BURST_PACKETS` data ACKs (sequence
 numbers counting up from the request's + 1); the last has `burst_complete` = 1 and the client asks for
@@ -93,6 +94,7 @@ MAX_SESSIONS = 3
 IDLE_CLOSE_S = 10.0
 BURST_PACKETS = 16
 REPLAY_CACHE = 8
+"""Senders and sessions whose last answer is kept for a repeated request."""
 MAX_FILE_BYTES = 4 << 20
 MAX_CARD_BYTES = 16 << 20
 MAX_ENTRIES = 64
@@ -155,7 +157,7 @@ class FtpServer:
         self.sessions: dict[int, Session] = {}
         self.finished: list[str] = []
         self.dropped: Counter = Counter() if dropped is None else dropped
-        self._replies: OrderedDict = OrderedDict()  # (sender, request payload) → reply payload
+        self._last: OrderedDict = OrderedDict()  # (sender, session) → (its last request, the answer)
 
     # --- the wire ---------------------------------------------------------------------------------
     def handle(self, msg, now: float) -> list:
@@ -166,9 +168,11 @@ class FtpServer:
             self.dropped["ftp_reply_to_vehicle"] += 1
             return []
         to = (msg.get_srcSystem(), msg.get_srcComponent())
-        key = (to, raw)
-        if key in self._replies:  # the same request again: its answer was lost
-            return [self._message(to, self._replies[key])]
+        key = (to, session)
+        last = self._last.pop(key, None)
+        if last is not None and last[0] == raw:  # the same request again: its answer was lost
+            self._last[key] = last
+            return [self._message(to, last[1])]
         data = raw[HEADER.size : HEADER.size + size]
         try:
             if size > MAX_DATA:
@@ -181,9 +185,9 @@ class FtpServer:
             body = bytes([e.code, e.err]) if e.code == ERR_FAIL_ERRNO else bytes([e.code])
             reply = self._header(seq + 1, session, OP_NAK, opcode, offset, len(body)) + body
         if len(reply) <= HEADER.size + 4:  # answers without data: kept for a repeated request
-            self._replies[key] = reply
-            while len(self._replies) > REPLAY_CACHE:
-                self._replies.popitem(last=False)
+            self._last[key] = (raw, reply)
+            while len(self._last) > REPLAY_CACHE:
+                self._last.popitem(last=False)
         return [self._message(to, reply)]
 
     def tick(self, now: float) -> None:
