@@ -4,8 +4,9 @@
 
 A damaged file (one weight changed: its stored example no longer replays) is uploaded first: the
 vehicle refuses it and MAVSDK sees why in a STATUSTEXT; then a good file (the same weights under
-another checkpoint name, so another SHA-256) is checked and loaded while disarmed, and the vehicle
-arms, takes off on it, holds, lands and disarms (autopilot/policy_upload.py)."""
+another checkpoint name, so another SHA-256) is checked and loaded while disarmed, read back by
+MAVSDK (its CRC32 of the card's file, and a burst download), and the vehicle arms, takes off on it,
+holds, lands and disarms (autopilot/policy_upload.py)."""
 
 from __future__ import annotations
 
@@ -81,6 +82,13 @@ async def upload_and_fly(port: int, good, damaged) -> dict:
             pass
         seen["checked"] = await said("policy.tar checked")
         seen["loaded"] = await said("Policy loaded")
+        # read back: MAVSDK's CRC32 of the card's file (PX4's convention) and a burst download
+        seen["identical"] = await ftp.are_files_identical(str(good), "/fs/microsd/raptor/policy.tar")
+        back = good.parent.parent / "back"
+        back.mkdir()
+        async for _ in ftp.download("/fs/microsd/raptor/policy.tar", str(back), True):
+            pass
+        seen["read_back"] = (back / "policy.tar").read_bytes() == good.read_bytes()
         track = Track(telemetry)
         await action.arm()
         await action.takeoff()
@@ -112,6 +120,7 @@ def test_a_policy_uploaded_with_mavsdk_ftp_is_checked_loaded_and_flown(tmp_path)
     assert "does not replay" in seen["refused"], seen["refused"]
     assert seen["checked"] == f"policy.tar checked: {NEW_NAME}"
     assert seen["loaded"] == f"Policy loaded: {NEW_NAME}"
+    assert seen["identical"] and seen["read_back"]
     assert np.linalg.norm(np.array(seen["held_at"]) - [0.0, 0.0, TAKEOFF_ALT]) <= ARRIVAL_M
     (c,) = json.loads(out.read_text())["commanded"]
     print(c["policies"])
