@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 from commander_gcs import GCS_COMPONENT, GCS_SYSTEM, Gcs, of_type
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from quadpilot.autopilot import ftp_protocol as F
 from quadpilot.autopilot.param_protocol import INT32, PARAMS
@@ -289,3 +291,40 @@ def test_a_request_like_an_earlier_one_but_not_the_last_is_done_again():
     assert c.one(F.OP_TERMINATE_SESSION, first["session"], seq=1)["opcode"] == F.OP_ACK
     again = c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/f", seq=0)  # a client that starts each transfer at 0
     assert again["opcode"] == F.OP_ACK and len(c.g.commander.ftp.sessions) == 1  # opened, not replayed
+
+
+PATHS = [b"/fs/microsd/raptor/a.bin", b"/fs/microsd/raptor", b"/fs/microsd/new", b"@PARAM/param.pck", b"/", b"../x"]
+PAYLOADS = st.builds(
+    lambda seq, session, opcode, size, offset, data: (
+        F.HEADER.pack(seq, session, opcode, size, 0, 0, 0, offset) + data
+    ).ljust(F.PAYLOAD_LEN, b"\0")[: F.PAYLOAD_LEN],
+    st.integers(0, 0xFFFF),
+    st.sampled_from([0, 1, 2, 9, 255]) | st.integers(0, 255),
+    st.integers(0, 16) | st.sampled_from([F.OP_ACK, F.OP_NAK, 200]),
+    st.integers(0, 255),
+    st.integers(0, 4000) | st.integers(0, 2**32 - 1),
+    st.sampled_from(PATHS)
+    | st.binary(max_size=F.MAX_DATA)
+    | st.builds(lambda a, b: a + b"\0" + b, *[st.sampled_from(PATHS)] * 2),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(PAYLOADS | st.binary(min_size=F.PAYLOAD_LEN, max_size=F.PAYLOAD_LEN), min_size=1, max_size=8))
+def test_any_ftp_payload_is_answered_at_once_and_never_raises(payloads):
+    c = Ftp()
+    upload(c, "/fs/microsd/raptor/a.bin", bytes(range(200)) * 3)  # something to read, rename, remove
+    c.one(F.OP_OPEN_FILE_RO, data=b"/fs/microsd/raptor/a.bin")
+    for raw in payloads:
+        g = c.g
+        out = of_type(g.send(g.tx.file_transfer_protocol_encode(0, 1, 1, list(raw))), "FILE_TRANSFER_PROTOCOL")
+        opcode = raw[3]
+        if opcode in (F.OP_ACK, F.OP_NAK):
+            assert out == []
+        else:
+            assert 1 <= len(out) <= F.BURST_PACKETS + 1
+            assert all(reply(m)["req"] == opcode for m in out)
+        ftp = g.commander.ftp
+        assert len(ftp.sessions) <= F.MAX_SESSIONS and ftp.card.used() <= F.MAX_CARD_BYTES
+        assert ftp.card.entries() <= F.MAX_ENTRIES
+    assert not [k for k in c.g.commander.dropped if k != "ftp_reply_to_vehicle"]
