@@ -84,6 +84,14 @@ def test_int32_parameters_travel_bytewise():
     assert v.param_type == INT32 and v.param_value == int_bytes(7) and g.commander.params["COM_DL_LOSS_T"] == 7
 
 
+def test_an_int32_parameter_sent_as_a_whole_float_is_set():
+    g = Gcs()
+    out = g.param_set("COM_DL_LOSS_T", 7.0, REAL32)  # MAVProxy, after reading @PARAM/param.pck
+    v = value_of(out, "COM_DL_LOSS_T")
+    assert v.param_type == INT32 and v.param_value == int_bytes(7) and texts(out) == []
+    assert g.commander.params["COM_DL_LOSS_T"] == 7
+
+
 @pytest.mark.parametrize(
     ("name", "value", "kind", "why"),
     [
@@ -95,7 +103,8 @@ def test_int32_parameters_travel_bytewise():
         ("COM_DL_LOSS_T", int_bytes(4), INT32, "outside"),  # PX4 min 5 s
         ("NAV_DLL_ACT", int_bytes(5), INT32, "not an allowed value"),  # Terminate: not supported here
         ("MIS_TAKEOFF_ALT", int_bytes(3), INT32, "type"),  # a REAL32 parameter sent as INT32
-        ("COM_DL_LOSS_T", 7.0, REAL32, "type"),
+        ("COM_DL_LOSS_T", 7.5, REAL32, "not an integer"),  # as a float (MAVProxy after the file): whole only
+        ("COM_DL_LOSS_T", int_bytes(7), REAL32, "not an integer"),  # bytewise, but typed REAL32
     ],
 )
 def test_refused_set_leaves_the_value_unchanged_and_says_why(name, value, kind, why):

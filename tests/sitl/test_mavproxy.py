@@ -26,6 +26,7 @@ import json
 import os
 import re
 import shutil
+import struct
 import subprocess
 import sys
 import threading
@@ -39,11 +40,13 @@ from pymavlink import mavutil
 
 from quadpilot.autopilot import param_protocol as params
 from quadpilot.link.frames import geodetic_to_local
+from quadpilot.sitl import SHIPPED_HOVER
 
 pytestmark = pytest.mark.sitl
 M = mavutil.mavlink
 TAKEOFF_ALT = 3.0  # set with `param set`; the Takeoff mode climbs to it
 ARRIVAL_M = 0.15
+PX4_RAPTOR = SHIPPED_HOVER.parents[1] / "hover_px4_raptor_sih" / "policy.tar"
 
 
 def mavproxy_path() -> str | None:
@@ -108,6 +111,12 @@ def read_tlog(path: Path) -> list:
     return got
 
 
+def ftp_header(m) -> tuple:
+    """seq_number, session, opcode, size, req_opcode, burst_complete, offset of a FILE_TRANSFER_PROTOCOL."""
+    seq, session, op, size, req, burst, _, offset = struct.unpack_from("<HBBBBBBI", bytes(m.payload))
+    return seq, session, op, size, req, burst, offset
+
+
 def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path):
     exe = mavproxy_path()
     if exe is None:
@@ -120,9 +129,17 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
     seen = {}
     try:
         console.expect(r"Detected vehicle 1:1", 20)
-        # MAVProxy asks for the parameters by MAVLink FTP first, then (no answer) by PARAM_REQUEST_LIST
-        seen["params"] = int(console.expect(r"Received (\d+) parameters", 30).group(1))
+        seen["detected_s"] = time.monotonic() - t0
+        # MAVProxy asks for the parameters by MAVLink FTP first (@PARAM/param.pck), then, if that
+        # fails, by PARAM_REQUEST_LIST
+        got = console.expect(r"Received (\d+) parameters( \(ftp\))?", 30)
+        seen["params"], seen["params_by"] = int(got.group(1)), "ftp" if got.group(2) else "param protocol"
         seen["params_s"] = time.monotonic() - t0
+        # MAVProxy's `ftp put` of a policy.tar onto the card: checked; not flown by this vehicle,
+        # which flies an ONNX policy (autopilot/policy_upload.py)
+        console.send(f"ftp put {PX4_RAPTOR} /fs/microsd/raptor/policy.tar")
+        seen["put"] = console.expect(r"policy\.tar checked: .*", 10).group(0)
+        seen["put_loaded"] = console.expect(r"policy\.tar not loaded: .*", 10).group(0)
         console.send("param show MIS_TAKEOFF_ALT")
         seen["shown"] = float(console.expect(r"MIS_TAKEOFF_ALT\s+(\S+)", 5).group(1))
         console.send(f"param set MIS_TAKEOFF_ALT {TAKEOFF_ALT}")
@@ -159,6 +176,8 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
 
     # MAVProxy's side
     assert seen["params"] == len(params.PARAMS)
+    assert seen["params_by"] == "ftp"  # @PARAM/param.pck, the table in one transfer
+    assert seen["put_loaded"].endswith("not flying a RAPTOR policy"), seen["put_loaded"]
     assert seen["shown"] == 2.5 and seen["shown_after_set"] == TAKEOFF_ALT
     assert {"LOITER", "TAKEOFF", "MISSION", "RTL", "LAND", "POSCTL"} <= set(seen["modes"])
     assert seen["mode_loiter"] == "ERROR in command", "MAVProxy's `mode NAME` works for PX4 now: fly with it"
@@ -172,7 +191,9 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
     assert (M.MAV_CMD_NAV_TAKEOFF, M.MAV_RESULT_DENIED) in acks
     assert acks.count((M.MAV_CMD_DO_SET_MODE, M.MAV_RESULT_ACCEPTED)) == 2, acks  # `mode loiter` sent none
     values = [m.param_value for m in sent if m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT"]
-    assert values[0] == 2.5 and values[-1] == TAKEOFF_ALT, values
+    assert values and values[-1] == TAKEOFF_ALT, values  # (2.5 before: MAVProxy read it in the file)
+    asked = [m for m in got if m.get_srcSystem() == 255 and m.get_type() == "PARAM_REQUEST_LIST"]
+    assert not asked, "MAVProxy fell back to PARAM_REQUEST_LIST: the parameter file did not reach it"
     texts = [m.text for m in sent if m.get_type() == "STATUSTEXT"]
     assert any(t.startswith("Takeoff denied: already higher") for t in texts), texts
     truth = np.array(
@@ -190,6 +211,20 @@ def test_mavproxy_sets_a_parameter_arms_takes_off_and_lands_the_vehicle(tmp_path
     (c,) = json.loads(out.read_text())["commanded"]
     print(c)
     assert not c["armed"] and c["flown"] and c["landed_state"] == "ON_GROUND", c
-    # all MAVProxy sent was understood but its MAVLink FTP (parameters by file, which the vehicle
-    # does not serve) and REQUEST_DATA_STREAM (MAVLink 1 stream rates, which PX4 ignores too)
-    assert c["gcs_dropped"].keys() <= {"unexpected_file_transfer_protocol", "unexpected_request_data_stream"}, c
+    # all MAVProxy sent was understood but REQUEST_DATA_STREAM (MAVLink 1 stream rates, which PX4
+    # ignores too)
+    assert c["gcs_dropped"].keys() <= {"unexpected_request_data_stream"}, c
+    # every MAVLink FTP request MAVProxy sent (the parameter file, then the `ftp put`) was answered at
+    # once: each has its answer (sequence number + 1, the request's opcode), and none was sent again
+    # (MAVProxy repeats a request only when no answer came within its retry time, at least 1 s, and
+    # gives up on the parameter file after 10 repeats: the 10 s MAVProxy waited before its
+    # parameters when the vehicle was silent)
+    ftp = [m for m in got if m.get_type() == "FILE_TRANSFER_PROTOCOL"]
+    requests = [ftp_header(m) for m in ftp if m.get_srcSystem() == 255]
+    answers = {(h[0], h[4]) for h in (ftp_header(m) for m in ftp if m.get_srcSystem() == 1)}
+    print(f"{len(requests)} FTP requests, {len(answers)} answered")
+    assert requests, "MAVProxy sent no MAVLink FTP request: it no longer asks for the parameter file"
+    assert all(((seq + 1) & 0xFFFF, op) in answers for seq, _, op, *_ in requests), (requests, answers)
+    # (a request repeated: the same session, opcode and offset again; sequence numbers wrap at 256)
+    assert len({(h[1], h[2], h[6]) for h in requests}) == len(requests), requests
+    assert not [line for line in transcript.splitlines() if "FTP: request timed out" in line]

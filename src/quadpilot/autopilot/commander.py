@@ -32,10 +32,11 @@ The rules, and where they come from (commands: `commands`):
   resumes what was being flown; after the action the ground station takes over with a new command.
   Which clock: the one the owner passes (simulated time, which runs with the wall clock in a
   real-time simulation).
-Parameters: `param_protocol`; missions: `mission_protocol` (the transfer) and `modes.Mission` (where
-the flight is in it); the flight modes: `modes`, their legs flown by `navigator`; the moving target
-and the land detector: `setpoint`; telemetry: `streams`. Message dispatch: `Commander.HANDLERS`, a
-table of functions, as the node's (`flight.Flight.HANDLERS`); commands: `commands.COMMANDS`, likewise.
+Parameters: `param_protocol`; files (MAVLink FTP): `ftp_protocol`; missions: `mission_protocol` (the
+transfer) and `modes.Mission` (where the flight is in it); the flight modes: `modes`, their legs
+flown by `navigator`; the moving target and the land detector: `setpoint`; telemetry: `streams`.
+Message dispatch: `Commander.HANDLERS`, a table of functions, as the node's (`flight.Flight.HANDLERS`);
+commands: `commands.COMMANDS`, likewise.
 """
 
 from __future__ import annotations
@@ -50,11 +51,11 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.core.state import POS, RATES, STATE_DIM, VEL, YAW, Z
 from quadpilot.link.frames import Home
 
-from . import commands, mission_protocol, streams
+from . import commands, ftp_protocol, mission_protocol, policy_upload, streams
 from .commands import ACCEPTED, DENIED, TEMP_REJECTED, enu_yaw
 from .modes import HOLD, MISSION, MODE_NAMES, POSCTL, Land, Mission, Mode, Return
 from .navigator import Navigator
-from .param_protocol import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable
+from .param_protocol import NAV_DLL_LAND, NAV_DLL_RETURN, ParamTable, param_pack
 from .setpoint import LandDetector, LandLimits, Mover
 
 M = mavlink2
@@ -131,6 +132,12 @@ class Commander:
         self.failsafe: str | None = None  # None, "hold" (waiting COM_FAIL_ACT_T), "action" or "motors cut"
         self.failsafe_at = 0.0
         self.dropped: Counter = Counter()
+        self.new_policy = None
+        """A policy.tar uploaded and checked (`policy_upload`), for the owner to fly when disarmed."""
+        self.policies: list[dict] = []
+        """Each policy.tar uploaded: when, what the ground station was told, its SHA-256 if good."""
+        self._text_id = 0
+        self.ftp = ftp_protocol.FtpServer(self.mav, lambda defaults: param_pack(self.params, defaults), self.dropped)
         self.received = 0
         self.recent_commands: dict = {}  # (source, command, is COMMAND_INT) → (arguments, result, time)
         self._out: list = []
@@ -164,6 +171,20 @@ class Commander:
 
     def text(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
         self._out.append(self.mav.statustext_encode(severity, text.encode()[:50]))
+
+    def long_text(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
+        """A text longer than one STATUSTEXT in chunks of 50 characters sharing an id (MAVLink's
+        STATUSTEXT id and chunk_seq, which MAVSDK puts back together); the last chunk is shorter."""
+        raw = text.encode("ascii", "replace")[: 50 * 20]
+        if len(raw) <= 50:
+            self._out.append(self.mav.statustext_encode(severity, raw))
+            return
+        self._text_id = self._text_id % 0xFFFF + 1
+        chunks = [raw[i : i + 50] for i in range(0, len(raw), 50)]
+        if len(chunks[-1]) == 50:
+            chunks.append(b"")
+        for k, chunk in enumerate(chunks):
+            self._out.append(self.mav.statustext_encode(severity, chunk, self._text_id, k))
 
     def heartbeat(self):
         main, sub = self.mode
@@ -255,6 +276,16 @@ class Commander:
         for t in texts:
             self.text(t, M.MAV_SEVERITY_WARNING)
         self._mission_changed()
+
+    def _on_ftp(self, msg) -> None:
+        self._out += self.ftp.handle(msg, self.now)
+        for path in self.ftp.finished:
+            if path == ftp_protocol.POLICY_PATH and path in self.ftp.card.files:
+                tar, said = policy_upload.check_upload(bytes(self.ftp.card.files[path]))
+                self.long_text(said, M.MAV_SEVERITY_INFO if tar else M.MAV_SEVERITY_ERROR)
+                self.policies.append({"at_s": self.now, "text": said, "sha256": tar and tar.sha256})
+                self.new_policy = tar or self.new_policy
+        self.ftp.finished.clear()
 
     # --- arming, modes, missions --------------------------------------------------------------------
     def armable(self) -> str | None:
@@ -420,6 +451,7 @@ class Commander:
         self.motors = self.armed and not (self.landed and not self.nav.taking_off)
         self.motors = self.motors and not (self.nav.landing and self.detector.contact)
         self.missions.locked = self.armed and self.mode == MISSION and self.mission.active
+        self.ftp.tick(now)
         replies, texts = self.missions.tick(now)
         self._out += replies
         for t in texts:
@@ -495,6 +527,7 @@ class Commander:
         "MISSION_REQUEST": _on_mission,
         "MISSION_ACK": _on_mission,
         "MISSION_CLEAR_ALL": _on_mission,
+        "FILE_TRANSFER_PROTOCOL": _on_ftp,
     }
     """Message type → handler (a function of the commander and the message), as the node dispatches
     (`flight.Flight.HANDLERS`); types not here are counted as dropped (`unexpected_<type>`)."""

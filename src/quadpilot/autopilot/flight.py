@@ -25,6 +25,7 @@ from .commander import Commander
 from .dead_reckoning import ImuCalibration
 from .flight_log import EpisodeLog
 from .ground_station import GroundStation
+from .policy_upload import fly_uploaded
 from .setpoint import collective_thrust
 from .state_loss import StateLoss
 
@@ -366,6 +367,8 @@ class Flight:
             if self.cfg.start == "air":
                 c.arm_in_air(s)  # armed, holding here, before the first step: its first heartbeat says so
         out = c.step(s, self.home, now, 0.0 if self.held is None else collective_thrust(self.held))
+        if c.new_policy is not None and not c.armed and fly_uploaded(c, self.monitor):  # docs: policy_upload
+            self.own_observation = self.monitor.policy.own_observation
         self._log_texts(out, now)
         if self.gcs is not None:
             self.gcs.send(out)

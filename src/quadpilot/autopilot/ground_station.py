@@ -137,4 +137,5 @@ def commander_summary(c: Commander, gcs: GroundStation | None, disarmed_at_us: i
         "gcs_messages": int(c.received),
         "gcs_dropped": {**dict(c.dropped), **(dict(gcs.dropped) if gcs is not None else {})},
         "disarmed_at_s": None if disarmed_at_us is None else disarmed_at_us * 1e-6,
+        "policies": list(c.policies),
     }

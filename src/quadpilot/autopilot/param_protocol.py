@@ -14,6 +14,20 @@ Encoding: REAL32 parameters travel as floats; INT32 ones bytewise (the int32's f
 field), as PX4 does and announces with MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE; MAVSDK encodes
 the same way for any autopilot that is not ArduPilot (mavlink_parameter_client.cpp).
 
+A REAL32 PARAM_SET of an INT32 parameter is taken when its value is a whole number (7.0 sets 7): that
+is how MAVProxy sets every parameter once it has read them as a file (`param_pack`), as ArduPilot
+takes them; an int32 sent bytewise but typed REAL32 is a tiny denormal float, not a whole number, and
+is refused as one.
+
+The table as a file (`param_pack`): what MAVProxy asks for over MAVLink FTP as `@PARAM/param.pck`
+before PARAM_REQUEST_LIST. The format is ArduPilot's (libraries/AP_Filesystem/AP_Filesystem_Param.cpp,
+decoded by MAVProxy's modules/lib/param_ftp.py); PX4 does not serve it. Little-endian: a header of
+magic 0x671b (0x671c with defaults), the number of parameters in the file and in the table; then per
+parameter a type byte (low nibble 3 INT32 or 4 REAL32, high nibble flags: 1 = a default follows the
+value), a byte with the name's new characters - 1 (high nibble) and the number of leading characters
+it shares with the previous name (low nibble), those characters, the value, and the default when the
+flag says so (with defaults: for a value that differs from the default).
+
 Deviations from PX4's defaults, each for a reason given on its row: NAV_ACC_RAD and NAV_MC_ALT_RAD
 (acceptance radii of 10 m and 0.8 m are for GPS-grade position holds; the policies here hold
 centimetres) and NAV_DLL_ACT (PX4 ships the data-link-loss action disabled; a vehicle flown from a
@@ -184,10 +198,11 @@ class ParamTable:
         spec = self.specs.get(name)
         if spec is None:
             return [], [f"[pm] unknown param: {name}"]
-        if msg.param_type != spec.kind:
+        as_float = spec.kind == INT32 and msg.param_type == REAL32  # MAVProxy after reading the file
+        if msg.param_type != spec.kind and not as_float:
             why = f"type {_TYPE_NAMES.get(msg.param_type, msg.param_type)}, expected {_TYPE_NAMES[spec.kind]}"
         else:
-            value = decode(spec.kind, msg.param_value)
+            value = float(msg.param_value) if as_float else decode(spec.kind, msg.param_value)
             why = spec.check(value)
             if why is None:
                 self.values[name] = value
@@ -201,3 +216,28 @@ def _name(raw) -> str:
     if isinstance(raw, bytes):
         raw = raw.decode("ascii", "replace")
     return raw.split("\x00", 1)[0]
+
+
+PACK_MAGIC, PACK_MAGIC_DEFAULTS = 0x671B, 0x671C
+_PACK_TYPES = {INT32: (3, "<i"), REAL32: (4, "<f")}
+
+
+def param_pack(table: ParamTable, with_defaults: bool = False) -> bytes:
+    """The parameters as ArduPilot's packed parameter file (see the module docstring), in index order."""
+    out = bytearray(struct.pack("<HHH", PACK_MAGIC_DEFAULTS if with_defaults else PACK_MAGIC, len(PARAMS), len(PARAMS)))
+    last = b""
+    for p in PARAMS:
+        name = p.name.encode()
+        common = 0
+        while common < min(len(name) - 1, len(last), 15) and name[common] == last[common]:
+            common += 1
+        kind, fmt = _PACK_TYPES[p.kind]
+        value = table.values[p.name]
+        has_default = with_defaults and value != p.default
+        out += bytes([kind | (0x10 if has_default else 0), (len(name) - common - 1) << 4 | common])
+        out += name[common:]
+        out += struct.pack(fmt, int(value) if p.kind == INT32 else value)
+        if has_default:
+            out += struct.pack(fmt, int(p.default) if p.kind == INT32 else p.default)
+        last = name
+    return bytes(out)

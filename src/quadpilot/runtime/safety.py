@@ -146,6 +146,16 @@ class SafetyMonitor:
         self._exits = 0  # envelope exits this flight
         self._hover = np.full(NUM_MOTORS, info.vehicle.hover_command, np.float32)
 
+    def replace_policy(self, policy: Policy) -> None:
+        """Fly `policy` instead, from now on, with this monitor's fallback and limits: it must observe
+        the same layout at the same rate as the one it replaces (ValueError otherwise). Reset, as for
+        a new flight: call it between flights (the node does while disarmed)."""
+        old, new = self.policy.info, policy.info
+        if new.layout != old.layout or new.control_period_s != old.control_period_s:
+            raise ValueError(f"{new.path}: a different observation or rate than {old.path}; expected the same contract")
+        self.policy, self._policy_act, self._observation = policy, policy._act, policy.observation
+        self.reset()
+
     @property
     def in_fallback(self) -> bool:
         """The fallback has the vehicle (for now, or latched)."""
