@@ -38,8 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.autopilot.state_loss import StateLossConfig
+from quadpilot.autopilot.state_loss import StateLossConfig, parse_state_loss
 from quadpilot.console import atomic_output, atomic_write, float_in
+from quadpilot.link.impair import summary_line as impair_summary
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, MAX_SPIN_US
 
 POLICY_HELP = (
@@ -150,45 +151,20 @@ impair_type.__name__ = "impairment"
 
 
 def start_impair(args, address: str):
-    """(proxy, the address the node connects to): with --link-impair, an impairment proxy relaying to
-    `address` (loopback only: ImpairSpecError otherwise), seeded by the spec or --seed; else (None, address)."""
+    """(proxy, the address the node connects to): with --link-impair, `link.impair.start_proxy`
+    relaying to `address`, seeded by the spec or --seed; else (None, address)."""
     if args.link_impair is None:
         return None, address
-    import dataclasses
+    from quadpilot.link.impair import start_proxy
 
-    from quadpilot.link.impair import Proxy
-
-    imp = args.link_impair
-    if imp.seed is None:
-        imp = dataclasses.replace(imp, seed=getattr(args, "seed", 0))
-    proxy = Proxy(address, imp)
-    return proxy, str(proxy.start())
-
-
-def impair_line(s: dict) -> str:
-    """What the proxy did, for the summary."""
-    up, down = s["up"], s["down"]
-
-    def way(c: dict) -> str:
-        return (
-            f"{c['frames']:,} frames: lost {c['lost']:,} + {c['lost_burst']:,} in bursts, delayed {c['delayed']:,}, "
-            f"duplicated {c['duplicated']:,}, reordered {c['reordered']:,}"
-        )
-
-    return f"  link impaired ({s['spec']})  node→sim {way(up)}; sim→node {way(down)}"
+    return start_proxy(args.link_impair, address, getattr(args, "seed", 0))
 
 
 def state_loss_type(text: str) -> StateLossConfig:
-    """--state-loss POLICY_S,DESCEND_S → StateLossConfig; one line saying what is expected otherwise."""
-    parts = text.split(",")
     try:
-        if len(parts) != 2:
-            raise ValueError(f"{text!r} is not two numbers")
-        return StateLossConfig(policy_s=float(parts[0]), descend_s=float(parts[1]))
+        return parse_state_loss(text)
     except ValueError as e:
-        raise argparse.ArgumentTypeError(
-            f"{e}; expected POLICY_S,DESCEND_S in seconds with 0 <= POLICY_S <= DESCEND_S, e.g. 1,2"
-        ) from None
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -215,10 +191,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=state_loss_type,
         default=StateLossConfig(),
         metavar="POLICY_S,DESCEND_S",
-        help="When the simulator's states stop while its HIL_SENSOR goes on: the policy flies on the node's "
-        "estimate for POLICY_S seconds, the fallback holds attitude and height until DESCEND_S, then the vehicle "
-        "lands and the motors stop on the ground (autopilot.state_loss). Default: "
-        f"{StateLossConfig().policy_s:g},{StateLossConfig().descend_s:g}",
+        help="No state but HIL_SENSOR: the policy flies on the node's estimate for POLICY_S s, the fallback holds "
+        "attitude and height until DESCEND_S s, then it lands; the motors stop on the ground. Default: 1,2",
     )
     g = p.add_argument_group("--node-only (against any PX4-API simulator)")
     g.add_argument(
@@ -433,7 +407,7 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
     s.update(mode="node-only", policy=str(policy_path), backend=args.backend, simulator=args.connect)
     if proxy is not None:
         s["link_impair"] = proxy.summary()
-        print(impair_line(s["link_impair"]))
+        print(impair_summary(s["link_impair"]))
     s["home_source"] = "--home" if args.home is not None else "first valid position"
     print(summary_line(s))
     if maneuver is not None:
@@ -604,7 +578,7 @@ def print_summary(s: dict, policy: Path) -> None:
             + (f"; landed in {landed} of {s['episodes']} episodes" if landed else "")
         )
     if "link_impair" in s:
-        print(impair_line(s["link_impair"]))
+        print(impair_summary(s["link_impair"]))
     for c in s.get("commanded", []):
         gcs_dropped = ", ".join(f"{k} {v}" for k, v in sorted(c["gcs_dropped"].items())) or "none dropped"
         end = "never disarmed after flying" if c["disarmed_at_s"] is None else f"disarmed at {c['disarmed_at_s']:.1f} s"

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
@@ -25,12 +24,10 @@ from .commander import Commander
 from .dead_reckoning import ImuCalibration
 from .flight_log import EpisodeLog
 from .ground_station import GroundStation
+from .node_config import NodeConfig
 from .policy_upload import fly_uploaded
 from .setpoint import collective_thrust
 from .state_loss import StateLoss
-
-if TYPE_CHECKING:
-    from .node import NodeConfig
 
 DISARMED_LINGER_S = 1.0
 """s a commanded flight goes on after the vehicle has flown and been disarmed (simulated time), so

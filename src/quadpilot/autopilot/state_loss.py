@@ -74,6 +74,19 @@ class StateLossConfig:
             raise ValueError(f"land_speed must be in (0, descent_speed), got {self.land_speed!r}")
 
 
+def parse_state_loss(text: str) -> StateLossConfig:
+    """`POLICY_S,DESCEND_S` (quad-sitl --state-loss) → StateLossConfig; ValueError in one line otherwise."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError(f"{text!r} is not two numbers")
+        return StateLossConfig(policy_s=float(parts[0]), descend_s=float(parts[1]))
+    except ValueError as e:
+        raise ValueError(
+            f"{e}; expected POLICY_S,DESCEND_S in seconds with 0 <= POLICY_S <= DESCEND_S, e.g. 1,2"
+        ) from None
+
+
 class StateLoss:
     """One loss of the state stream: its estimate, its phase and the commands of its hold and descent."""
 

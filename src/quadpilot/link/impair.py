@@ -35,6 +35,7 @@ frame goes out as two (two datagrams over UDP).
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import ipaddress
 import random
@@ -427,3 +428,25 @@ class Proxy:
                         way.fate(raw, now, queue, seq)
                     else:
                         way.pass_through(raw, now, queue, seq)
+
+
+def start_proxy(spec: Impairment, address: str, seed: int = 0) -> tuple[Proxy, str]:
+    """(a started proxy relaying to `address` (loopback only: ImpairSpecError otherwise), the address
+    to connect to instead); the spec's own seed, else `seed`."""
+    if spec.seed is None:
+        spec = dataclasses.replace(spec, seed=seed)
+    proxy = Proxy(address, spec)
+    return proxy, str(proxy.start())
+
+
+def summary_line(s: dict) -> str:
+    """What the proxy did (`Proxy.summary()`), for a flight's summary."""
+    up, down = s["up"], s["down"]
+
+    def way(c: dict) -> str:
+        return (
+            f"{c['frames']:,} frames: lost {c['lost']:,} + {c['lost_burst']:,} in bursts, delayed {c['delayed']:,}, "
+            f"duplicated {c['duplicated']:,}, reordered {c['reordered']:,}"
+        )
+
+    return f"  link impaired ({s['spec']})  node→sim {way(up)}; sim→node {way(down)}"
