@@ -29,8 +29,8 @@ def test_quad_sitl_flies_through_the_proxy_and_says_what_it_did(proto, tmp_path,
         due = c["frames"] - c["lost"] - c["lost_burst"] + c["duplicated"]
         assert 0 <= due - c["relayed"] <= 3  # what was still in flight when the episode ended is not relayed
     assert s["success_rate"] == 1.0 and s["failsafe_events"] == 0
-    # a lost state leaves its step unanswered; a duplicate is refused as a repeated timestamp
-    assert s["packets_dropped"]["sensor_without_state"] > 0 and s["packets_dropped"]["time_repeated"] > 0
+    # a lost state's step is flown on the node's estimate; a duplicate is refused as a repeated timestamp
+    assert s["state_lost_steps"] > 0 and s["packets_dropped"]["time_repeated"] > 0
     assert "link impaired (loss=5%,duplicate=2%,seed=1)" in capsys.readouterr().out
 
 

@@ -179,9 +179,14 @@ class Flight:
         log, monitor, state, lockstep = self.log, self.monitor, self.state, self.cfg.lockstep
         t_us = msg.time_usec
         blind = t_us == self.bad_time and self.bad_time > self.state_time  # its step's state was dropped
-        # a step is answered once, and never after a later one
+        if self.failsafe is not None:  # latched by this step's state: the loop ends the flight
+            return
+        # a step is answered once, and never after a later one, nor after a jump in the simulator's time
         if t_us <= self.last_sensor_time:
             log.dropped["sensor_out_of_order"] += 1
+            return
+        if self.last_sensor_time >= 0 and t_us - self.last_sensor_time > self.cfg.max_time_jump_s * 1e6:
+            log.dropped["sensor_time_jump"] += 1
             return
         lost = t_us != self.state_time and not blind  # this step's state never came
         if lost and state is None:  # no state yet at all: motors off, and no arming without one
