@@ -204,7 +204,7 @@ def judge(
         )
         rms, spd = float(np.sqrt(np.mean(e_r**2))), float(np.mean(np.abs(e_v)))
         long_enough = len(states) * dt >= 2.0 * circle_lap_s() - dt
-        out.update(radial_rms_m=rms, speed_error_mps=spd)
+        out.update(radial_rms_m=rms, speed_error_mps=spd, two_laps_flown=long_enough)
         out["success"] = bool(
             not crash
             and long_enough
