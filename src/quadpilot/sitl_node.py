@@ -539,16 +539,9 @@ def summarise(logs, period: float, task: str = "hover") -> dict:
         "per_episode": eps,
     }
     if task == "circle" and finite:
-        # the second lap's figures only of the episodes that flew it: a shorter --duration (or a
-        # crash) leaves a second half that is part of the first lap, or of no lap at all
-        from quadpilot.core.mission import circle_lap_s
+        from quadpilot.core.mission import circle_summary
 
-        laps = [e for e in finite if e["two_laps_flown"]]
-        out["circle_second_laps_not_flown"] = len(finite) - len(laps)
-        out["circle_lap_s"] = circle_lap_s()
-        if laps:
-            out["radial_rms_m"] = float(np.mean([e["radial_rms_m"] for e in laps]))
-            out["speed_error_mps"] = float(np.mean([e["speed_error_mps"] for e in laps]))
+        out.update(circle_summary(finite))
     return out
 
 
@@ -567,18 +560,10 @@ def print_summary(s: dict, policy: Path) -> None:
             f"(worst episode {s['max_abs_yaw_rate_last_2s_radps']:.3f}), "
             f"worst heading error {s['max_heading_error_last_2s_deg']:.1f}°"
         )
-    short = s.get("circle_second_laps_not_flown", 0)
-    if "radial_rms_m" in s:
-        print(
-            f"  circle (second lap)     radial RMS {s['radial_rms_m'] * 100:.2f} cm, "
-            f"speed error {s['speed_error_mps'] * 100:.2f} cm/s"
-            + (f" ({short} of {s['episodes']} episodes ended before their second lap)" if short else "")
-        )
-    elif short:
-        print(
-            f"  circle (second lap)     not flown: the episodes ended before two laps "
-            f"({2 * s['circle_lap_s']:.1f} s; --duration)"
-        )
+    if "circle_lap_s" in s:
+        from quadpilot.core.mission import circle_line
+
+        print(circle_line(s))
     print(
         f"  control-loop latency    p50 {s['control_latency_p50_us']:.0f} µs, p99 {s['control_latency_p99_us']:.0f} µs"
     )

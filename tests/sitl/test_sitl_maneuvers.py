@@ -76,7 +76,7 @@ def test_a_flight_shorter_than_its_laps_prints_no_lap_figures(tmp_path, capsys):
     says the lap was not flown, and prints no lap figure measured on a lap never flown."""
     circle = _fly(tmp_path, "models/circle/policy.onnx", "--duration", "3", "--episodes", "1")
     out = capsys.readouterr().out
-    assert "radial RMS" not in out and "circle (second lap)     not flown" in out
+    assert "radial RMS" not in out and "circle (second lap)     not flown: the episodes ended before two laps" in out
     assert "radial_rms_m" not in circle and circle["circle_second_laps_not_flown"] == 1
     eight = _fly(tmp_path, SIH, "--maneuver", "figure8:2", "--duration", "5", "--episodes", "1")
     out = capsys.readouterr().out
