@@ -101,6 +101,23 @@ def require_tool(name: str) -> str:
     return path
 
 
+def toolchain_versions() -> dict[str, str]:
+    """The versions an instruction count holds for: the compiler's and QEMU's first --version line,
+    and newlib's (`_NEWLIB_VERSION`, whose libm `expf` takes most of a tanh and a sigmoid)."""
+    cc = require_tool(CC)
+
+    def first_line(argv: list[str], stdin: str | None = None) -> str:
+        done = subprocess.run(argv, input=stdin, capture_output=True, text=True, check=True, timeout=BUILD_TIMEOUT_S)
+        return done.stdout.strip().splitlines()[-1 if stdin else 0].strip()
+
+    newlib = first_line([cc, "-E", "-P", "-x", "c", "-"], "#include <_newlib_version.h>\n_NEWLIB_VERSION\n")
+    return {
+        "gcc": first_line([cc, "--version"]),
+        "newlib": newlib.strip('"'),
+        "qemu": first_line([require_tool(QEMU), "--version"]),
+    }
+
+
 @dataclass(frozen=True)
 class Image:
     elf: Path
