@@ -430,7 +430,7 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
     if not log.replies:
         return _failed(f"nothing flown: {log.failsafe or 'no step from the simulator'}")
     if log.failsafe is not None:
-        return _failed(f"the flight ended early after {log.replies:,} steps: failsafe: {log.failsafe}")
+        return _failed(log.ended_early(cfg.duration_s))
     if s["judged_fallback_fraction"] > MAX_FALLBACK_FRACTION:
         reasons = ", ".join(f"{k} {v}" for k, v in s["fallback_reasons"].items()) or "no reason recorded"
         counted = s["fallback_steps"] - s["recovering_steps"]
