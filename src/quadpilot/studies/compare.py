@@ -278,15 +278,15 @@ def _check_args(args) -> None:
             raise UsageError(f"--seeds: {bad} are not seeds; expected integers ≥ 0")
         check_out_dir(Path(args.out))
     else:
-        beside = Path(args.sweeps[0]).resolve().parent  # the sweeps are kept out of the repository
-        args.doc = args.doc or str(beside / "comparison.md")
-        args.figures = args.figures or str(beside / "comparison")
         from quadpilot.console import input_path_problem
 
         for d in args.sweeps:
             why = input_path_problem(d, "a sweep directory written by quad-compare run", directory=True)
             if why is not None:
                 raise UsageError(why)
+        beside = Path(os.path.abspath(args.sweeps[0])).parent  # the sweeps are kept out of the repository
+        args.doc = args.doc or str(beside / "comparison.md")
+        args.figures = args.figures or str(beside / "comparison")
         check_out_dir(Path(args.figures), "--figures")
         from quadpilot.console import check_output_path
 
