@@ -31,7 +31,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -53,10 +52,6 @@ GOALS = {"policy_flash_bytes": 32 * 1024, "image_flash_bytes": 48 * 1024, "ram_b
 (.data + .bss + stack high-water), instructions per inference."""
 FLASH_SECTIONS = (".text", ".rodata", ".ARM.exidx", ".data")
 """.data's initial values are stored in flash too (copied to RAM at reset)."""
-
-
-def _version(argv: list[str]) -> str:
-    return subprocess.run(argv, capture_output=True, text=True, check=True).stdout.splitlines()[0].strip()
 
 
 def _footprint(image: ctarget.Image, run: ctarget.RunResult) -> dict:
@@ -161,9 +156,10 @@ def main(argv: list[str] | None = None) -> int:
             "cpu": cpu_model(),
             "cpus": os.cpu_count(),
             "system": f"{platform.system()} {platform.release()}",
-            "note": "instruction counts are QEMU's deterministic count, independent of the host and its load",
+            "note": "instruction counts are QEMU's deterministic count, independent of the host and its load; they "
+            "depend on the toolchain (below) and on the inputs, which include a flight on the code's core.dynamics",
         },
-        "toolchain": {"gcc": _version([ctarget.CC, "--version"]), "qemu": _version([ctarget.QEMU, "--version"])},
+        "toolchain": ctarget.toolchain_versions(),
         "inputs": {"random_in_envelope": random, "flight_steps": flight, "golden": "the model's own"},
         "goals_hover_mlp": GOALS,
         "hover_mlp_against_goals": reached,

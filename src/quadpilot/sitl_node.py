@@ -429,7 +429,7 @@ def fly(args, policy, policy_path: Path, key: bytes | None, draw) -> int:
     if not log.replies:
         return _failed(f"nothing flown: {log.failsafe or 'no step from the simulator'}")
     if log.failsafe is not None:
-        return _failed(f"the flight ended early after {log.replies:,} steps: failsafe: {log.failsafe}")
+        return _failed(log.ended_early(cfg.duration_s))
     if s["judged_fallback_fraction"] > MAX_FALLBACK_FRACTION:
         reasons = ", ".join(f"{k} {v}" for k, v in s["fallback_reasons"].items()) or "no reason recorded"
         counted = s["fallback_steps"] - s["recovering_steps"]
@@ -538,8 +538,9 @@ def summarise(logs, period: float, task: str = "hover") -> dict:
         "per_episode": eps,
     }
     if task == "circle" and finite:
-        out["radial_rms_m"] = float(np.mean([e["radial_rms_m"] for e in finite]))
-        out["speed_error_mps"] = float(np.mean([e["speed_error_mps"] for e in finite]))
+        from quadpilot.core.mission import circle_summary
+
+        out.update(circle_summary(finite))
     return out
 
 
@@ -558,11 +559,10 @@ def print_summary(s: dict, policy: Path) -> None:
             f"(worst episode {s['max_abs_yaw_rate_last_2s_radps']:.3f}), "
             f"worst heading error {s['max_heading_error_last_2s_deg']:.1f}°"
         )
-    if "radial_rms_m" in s:
-        print(
-            f"  circle (second lap)     radial RMS {s['radial_rms_m'] * 100:.2f} cm, "
-            f"speed error {s['speed_error_mps'] * 100:.2f} cm/s"
-        )
+    if "circle_lap_s" in s:
+        from quadpilot.core.mission import circle_line
+
+        print(circle_line(s))
     print(
         f"  control-loop latency    p50 {s['control_latency_p50_us']:.0f} µs, p99 {s['control_latency_p99_us']:.0f} µs"
     )

@@ -128,6 +128,26 @@ def test_a_summary_of_no_flight_has_every_figure_as_nan_and_prints():
 
     for m in (Step(), FigureEight(2.0)):
         s = summarise(m, [])
-        figures = [v for k, v in s.items() if k not in ("maneuver", "maneuver_per_episode", "not_settled")]
+        counts = ("not_settled", "laps_not_flown")
+        figures = [v for k, v in s.items() if k not in ("maneuver", "maneuver_per_episode", *counts)]
         assert figures and all(math.isnan(v) for v in figures)
         assert summary_line(s)
+
+
+def test_the_figure_eight_summary_measures_only_laps_flown_whole():
+    """A flight that ended before the ramp and the lap did (a short --duration, a crash) is no lap:
+    its figures stay out of the means, and a summary with no lap flown says so instead of a figure."""
+    from quadpilot.core.maneuver import summarise, summary_line
+
+    f = FigureEight(2.0)
+    n = round(f.duration_s / DT)
+    targets = np.array([f.target_at(k)[0] for k in range(n)])
+    whole = _states(targets + np.array([0.0, 0.1, 0.0]))  # 10 cm off all along
+    part = _states(targets[: n // 2] + np.array([0.0, 0.5, 0.0]))  # 50 cm off, half the lap
+    s = summarise(f, [(whole, targets, DT), (part, targets[: n // 2], DT)])
+    assert s["tracking_rms_m"] == pytest.approx(0.1) and s["laps_not_flown"] == 1
+    assert "1 of 2 flights ended before their lap did" in summary_line(s)
+    short = summarise(f, [(part, targets[: n // 2], DT)])
+    line = summary_line(short)
+    assert "tracking RMS" not in line and "lap not flown" in line
+    assert f"{n // 2 * DT:.1f} s flown" in line and f"{f.duration_s:.1f} s" in line

@@ -108,6 +108,21 @@ def test_cli_writes_reports_and_refuses_bad_files(tmp_path, capsys):
     assert main([str(tmp_path / "missing.pt")]) == 2  # a bad argument: no such file
 
 
+def test_cli_given_an_onnx_file_says_what_it_is_and_speaks_of_no_flag_not_given(tmp_path, capsys):
+    onnx_file = MODELS / "hover" / "policy.onnx"
+    assert main([str(onnx_file)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1, err
+    assert "--output" not in err  # no --output was given
+    assert "is an ONNX file, already exported; fly it with quad-sitl" in err
+    assert str(MODELS / "hover" / "policy.pt") in err  # the checkpoint beside it
+    lone = tmp_path / "lone.onnx"
+    lone.write_bytes(onnx_file.read_bytes())
+    assert main([str(lone), "-o", str(tmp_path / "x.onnx")]) == 2
+    err = capsys.readouterr().err
+    assert "is an ONNX file" in err and "its checkpoint is" not in err and not (tmp_path / "x.onnx").exists()
+
+
 # --- the recurrent variant and the normalised MLP -------------------------------------------
 
 

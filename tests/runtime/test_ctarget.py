@@ -161,6 +161,32 @@ def test_footprint_parts_add_up_and_the_counts_are_sane(built, model, target):
     assert run.ticks[:, 0].min() > 0
 
 
+@pytest.fixture(scope="module")
+def recorded():
+    """docs/bench/embedded.json, the counts docs/embedded.md quotes, and whether this machine has the
+    toolchain they were counted with (gcc, newlib, QEMU): only then must its counts be the same."""
+    import json
+
+    need_tools()
+    doc = json.loads((Path(__file__).parents[2] / "docs" / "bench" / "embedded.json").read_text())
+    here = ctarget.toolchain_versions()
+    if any(here.get(k) != v for k, v in doc["toolchain"].items()):
+        pytest.skip(f"docs/bench/embedded.json was counted with {doc['toolchain']}; this machine has {here}")
+    return {r["case"]: r for r in doc["results"]}
+
+
+@pytest.mark.parametrize("model,target", CASES)
+def test_the_instruction_counts_are_the_ones_docs_bench_embedded_json_records(built, recorded, model, target):
+    """QEMU's count is deterministic: with the recorded toolchain the benchmark's inputs (these) give
+    the recorded counts exactly, on any host. A change to the kernel, the harness or the inputs (the
+    flight is flown on core.dynamics) changes them: re-measure (docs/embedded.md)."""
+    _, run, _, _, _ = built(model, target)
+    per = run.instructions[:, 0]
+    want = recorded[f"{model}@{target}"]["instructions"]
+    got = {"mean": float(per.mean()), "min": float(per.min()), "max": float(per.max()), "steps": len(per)}
+    assert got == pytest.approx(want, rel=0, abs=1e-6), "re-measure with the command in docs/embedded.md"
+
+
 # --- quad-export --format c --target ------------------------------------------------------------
 
 

@@ -263,3 +263,17 @@ def test_no_simulator_step_is_one_line_and_exit_1(capsys):
     assert code == 1
     (line,) = printed.err.strip().splitlines()
     assert line == "quad-sitl: nothing flown: simulator closed the link"
+
+
+def test_a_simulator_that_stops_before_the_duration_is_named_as_the_reason(capsys):
+    """A simulator script of fewer steps than --duration closes the link after its last step: the
+    flight ended early (exit 1), and the line says the simulator stopped first, after how much sim
+    time, and what to change, not only that the link closed."""
+    sim = ScriptedSimulator(1, 10_000, 50)  # 0.5 s of 10 ms steps
+    code = main(node_only(sim.port, "--duration", "1"))
+    sim.join()
+    assert code == 1
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert line.startswith("quad-sitl: the flight ended early after 50 steps: failsafe: simulator closed the link")
+    assert "after 0.50 s of sim time, before --duration 1 s: the simulator stopped stepping first" in line
+    assert "or give --duration 0.50" in line

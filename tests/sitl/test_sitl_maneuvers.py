@@ -69,3 +69,16 @@ def test_a_maneuver_that_cannot_be_flown_is_one_line_and_exit_2(args, says, caps
     assert main(["--gcs", "none", "--episodes", "1", *args]) == 2
     err = capsys.readouterr().err
     assert says in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_a_flight_shorter_than_its_laps_prints_no_lap_figures(tmp_path, capsys):
+    """--duration shorter than the circle's two laps or the figure-eight's ramp and lap: the summary
+    says the lap was not flown, and prints no lap figure measured on a lap never flown."""
+    circle = _fly(tmp_path, "models/circle/policy.onnx", "--duration", "3", "--episodes", "1")
+    out = capsys.readouterr().out
+    assert "radial RMS" not in out and "circle (second lap)     not flown: the episodes ended before two laps" in out
+    assert "radial_rms_m" not in circle and circle["circle_second_laps_not_flown"] == 1
+    eight = _fly(tmp_path, SIH, "--maneuver", "figure8:2", "--duration", "5", "--episodes", "1")
+    out = capsys.readouterr().out
+    assert "tracking RMS" not in out and "lap not flown: 5.0 s flown" in out
+    assert eight["laps_not_flown"] == 1 and np.isnan(eight["tracking_rms_m"])

@@ -110,8 +110,7 @@ def fake_run(directory, algo, seed, reach_at):
     )
 
 
-def test_report_writes_figures_and_only_its_own_section(tmp_path):
-    sweep_dir = tmp_path / "sweep"
+def fake_sweep(sweep_dir):
     for seed, (p, s) in enumerate([(4, 6), (4, 8), (6, 99)]):
         fake_run(sweep_dir / f"ppo-seed{seed}", "ppo", seed, p)
         fake_run(sweep_dir / f"sb3-seed{seed}", "sb3", seed, s)
@@ -131,6 +130,11 @@ def test_report_writes_figures_and_only_its_own_section(tmp_path):
             "started": "2026-01-01T00:00:00+00:00",
         },
     )
+
+
+def test_report_writes_figures_and_only_its_own_section(tmp_path):
+    sweep_dir = tmp_path / "sweep"
+    fake_sweep(sweep_dir)
     doc = tmp_path / "docs" / "comparison.md"
     doc.parent.mkdir()
     begin, end = compare_report.BEGIN, compare_report.END
@@ -156,6 +160,25 @@ def test_report_writes_figures_and_only_its_own_section(tmp_path):
     assert doc.read_text().count(compare_report.BEGIN) == 1 and "more prose" in doc.read_text()
 
 
+def test_report_by_default_writes_beside_the_sweeps_not_the_repository_page(tmp_path, monkeypatch, capsys):
+    """Without --doc and --figures the report goes beside the first sweep: the tracked
+    docs/comparison.md (and docs/comparison/) is rewritten only when named."""
+    from pathlib import Path
+
+    repo = Path(__file__).parents[2]
+    page, figures = repo / "docs" / "comparison.md", repo / "docs" / "comparison"
+    before = (page.read_bytes(), sorted((p.name, p.stat().st_mtime_ns) for p in figures.iterdir()))
+    sweeps = tmp_path / "runs" / "compare"
+    fake_sweep(sweeps / "hover-fast")
+    monkeypatch.chdir(repo)  # as the documented command runs it, from the repository root
+    assert compare.main(["report", str(sweeps / "hover-fast")]) == 0
+    assert (page.read_bytes(), sorted((p.name, p.stat().st_mtime_ns) for p in figures.iterdir())) == before
+    written = (sweeps / "comparison.md").read_text()
+    assert compare_report.BEGIN in written and "](comparison/hover-fast.png)" in written
+    assert (sweeps / "comparison" / "hover-fast.png").is_file()
+    assert f"wrote {sweeps / 'comparison.md'}" in capsys.readouterr().out
+
+
 def test_forward_fill_and_band():
     y = compare_report._ffill(np.array([np.nan, 1.0, np.nan, 3.0, np.nan]))
     assert np.isnan(y[0]) and list(y[1:]) == [1.0, 1.0, 3.0, 3.0]
@@ -173,3 +196,21 @@ def test_a_real_sweep_of_one_seed_runs_both_algorithms(tmp_path):
     for algo in ("ppo", "sb3"):
         ev = json.loads((out / f"{algo}-seed0" / "eval.json").read_text())
         assert ev["global_step"] == 8192 and ev["episodes"] == 100
+
+
+def test_the_matched_settings_tables_of_docs_comparison_md_are_the_code_presets():
+    """docs/comparison.md's matched-settings tables are those of the runs its commands train, as
+    quad-train reads the preset now (`compare.planned_config`): a preset or a field that changes
+    shows here, not only in a report made after a new sweep."""
+    import shlex
+    from pathlib import Path
+
+    doc = (Path(__file__).parents[2] / "docs" / "comparison.md").read_text(encoding="utf-8")
+    lines = [line for line in doc.splitlines() if line.startswith("nice -n 10 .venv/bin/quad-compare run ")]
+    runs = [shlex.split(line.split("quad-compare run ", 1)[1]) for line in lines]
+    assert len(runs) == 3
+    for argv in runs:
+        preset = argv[argv.index("--preset") + 1]
+        table = "\n".join(compare_report.settings_section(compare.planned_config(argv), preset)).strip("\n")
+        assert table in doc, f"docs/comparison.md: the matched settings of preset {preset} are not the code's"
+    assert ".venv/bin/quad-compare report" in doc and "--doc docs/comparison.md --figures docs/comparison" in doc

@@ -67,6 +67,19 @@ class EpisodeLog:
         """s, the simulator's step: the median interval between logged steps (NaN below two)."""
         return float(np.median(np.diff(self.t))) if len(self.t) > 1 else math.nan
 
+    def ended_early(self, duration_s: float) -> str:
+        """The one line of a flight that ended before `duration_s` on a failsafe. A simulator that
+        closed the link stopped stepping first (a script's loop of fewer steps than the duration
+        ends so): the line says how much of the duration it flew, and what to change."""
+        line = f"the flight ended early after {self.replies:,} steps: failsafe: {self.failsafe}"
+        if self.failsafe != "simulator closed the link" or not math.isfinite(self.step_s):
+            return line
+        flown = self.steps * self.step_s
+        return (
+            f"{line} after {flown:.2f} s of sim time, before --duration {duration_s:g} s: the simulator "
+            f"stopped stepping first; run it for at least --duration, or give --duration {flown:.2f}"
+        )
+
 
 def episode_summary(log: EpisodeLog, control_period_s: float, task: str = "hover") -> dict:
     """Success and errors of one flight with the project's one definition (`core.mission.judge`,

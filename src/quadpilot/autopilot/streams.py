@@ -66,7 +66,8 @@ SENSORS = (
 """SYS_STATUS bits present, enabled and healthy: the simulator's sensors (including the GPS, 0x20),
 the controllers the policy stands in for, and the estimator. The pre-arm check bit
 (MAV_SYS_STATUS_PREARM_CHECK) is present and enabled, and healthy when the vehicle may arm or is armed
-(MAVLink: "always healthy when armed")."""
+(MAVLink: "always healthy when armed"). The geofence bit is in health only (`wire.NO_FENCE_BREACHED`:
+no fence present, none breached)."""
 CAPABILITIES = (
     M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
     | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
@@ -182,7 +183,7 @@ def sys_status(mav, armable: bool, errors: int = 0, received: int = 0):
     return mav.sys_status_encode(
         SENSORS | prearm,
         SENSORS | prearm,
-        SENSORS | (prearm if armable else 0),
+        SENSORS | wire.NO_FENCE_BREACHED | (prearm if armable else 0),
         0,
         wire.UINT16_UNKNOWN,
         -1,

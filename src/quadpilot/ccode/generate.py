@@ -48,8 +48,8 @@ How it is written, and why:
   the same (the header says so).
 - The text is ASCII only (the layout's units and meanings are transliterated), for any toolchain.
 
-The names and text primitives every generated file shares are in `ctext`; the timing program and
-the operation count and Cortex-M4F estimate of a generated kernel are in `cbench`.
+The names and text primitives every generated file shares are in `ccode.text`; the timing program
+and the operation count and Cortex-M4F estimate of a generated kernel are in `ccode.bench`.
 """
 
 from __future__ import annotations
@@ -72,7 +72,6 @@ from quadpilot.modelfile.model import (
 )
 from quadpilot.modelfile.network import FLT_MAX, Dense, Network, network_from_model
 
-# the timing program and the cost estimates live in cbench; imported here too for existing callers
 from .text import ENTRY, GENERATOR, HEADER_NAME, RESET, SOURCE_NAME, STEP, ascii_text, c_array, c_float, clamp, wrap
 
 UNROLL = 4

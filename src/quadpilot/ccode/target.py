@@ -9,13 +9,13 @@ the cores it is written for, emulated.
 Targets (`TARGETS`): cortex-m4f (-mcpu=cortex-m4 -mfpu=fpv4-sp-d16) booted on QEMU's mps2-an386,
 cortex-m7 (-mcpu=cortex-m7 -mfpu=fpv5-d16) on mps2-an500; hard float, Thumb-2, C99 at -O2 with
 -Wall -Wextra -Werror, linked against newlib-nano's libm (Debian's gcc-arm-none-eabi and
-libnewlib-arm-none-eabi). The image is `charness`'s: it checks the model's golden vectors at boot
+libnewlib-arm-none-eabi). The image is `ccode.harness`'s: it checks the model's golden vectors at boot
 and exits through semihosting with status 0 only if they match.
 
 Counting: QEMU runs the image with `-icount shift=0`, so its virtual clock advances 1 ns per guest
 instruction, deterministically; SysTick counts that clock at the MPS2 boards' 25 MHz
 (`SYSCLK_FRQ` in QEMU's hw/arm/mps2.c), one tick per 40 instructions. The image times a known
-assembly loop at boot (`charness.CALIBRATION_INSTRUCTIONS`) and `RunResult.instructions_per_tick`
+assembly loop at boot (`ccode.harness.CALIBRATION_INSTRUCTIONS`) and `RunResult.instructions_per_tick`
 is derived from it, not assumed. These are instructions executed, not cycles: QEMU models no
 pipeline, no flash wait states, no cache (and no DWT cycle counter).
 
@@ -99,6 +99,23 @@ def require_tool(name: str) -> str:
     if path is None:
         raise CrossToolError(f"{name} not found on PATH; install it with: {APT_INSTALL}")
     return path
+
+
+def toolchain_versions() -> dict[str, str]:
+    """The versions an instruction count holds for: the compiler's and QEMU's first --version line,
+    and newlib's (`_NEWLIB_VERSION`, whose libm `expf` takes most of a tanh and a sigmoid)."""
+    cc = require_tool(CC)
+
+    def first_line(argv: list[str], stdin: str | None = None) -> str:
+        done = subprocess.run(argv, input=stdin, capture_output=True, text=True, check=True, timeout=BUILD_TIMEOUT_S)
+        return done.stdout.strip().splitlines()[-1 if stdin else 0].strip()
+
+    newlib = first_line([cc, "-E", "-P", "-x", "c", "-"], "#include <_newlib_version.h>\n_NEWLIB_VERSION\n")
+    return {
+        "gcc": first_line([cc, "--version"]),
+        "newlib": newlib.strip('"'),
+        "qemu": first_line([require_tool(QEMU), "--version"]),
+    }
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """The vocabulary every generated C file shares: the names of the files and of the functions they
-define, and how numbers and text are written into them. Used by the generator (`cgen`) and by the
-timing program (`cbench`).
+define, and how numbers and text are written into them. Used by the generator (`ccode.generate`) and by
+the timing program (`ccode.bench`).
 
 The generated text is compiled and loaded, and the model file it comes from is untrusted (docs/architecture.md,
 "Trust boundaries"): a number goes in only as `c_float` writes it (the shortest decimal that reads

@@ -137,6 +137,11 @@ class FigureEight:
         vel = np.array([self.a * math.cos(th) * dth, 2.0 * self.b * math.cos(2.0 * th) * dth, 0.0])
         return pos, vel
 
+    def lap_flown(self, steps: int, dt: float) -> bool:
+        """Whether a flight of `steps` steps of `dt` s lasted the ramp and the whole lap after it
+        (one step short allowed, as `core.mission.judge` allows the circle's two laps)."""
+        return steps * dt >= self.duration_s - dt
+
     def measure(self, states: np.ndarray, targets: np.ndarray, dt: float) -> dict:
         """RMS and largest distance to the target over the lap after the ramp (m): states (N, 12) and
         the targets (N, 3) given at each step."""
@@ -173,8 +178,17 @@ def summarise(maneuver: Step | FigureEight, flights: list[tuple[np.ndarray, np.n
     settling time and is counted in `not_settled`."""
     if isinstance(maneuver, Step):
         per = [maneuver.measure(states, dt) for states, _, dt in flights]
-    else:
-        per = [maneuver.measure(states, targets, dt) for states, targets, dt in flights]
+        measured = per
+    else:  # the lap's figures only of the flights that flew it: part of a lap is not "the lap"
+        per = [
+            {
+                **maneuver.measure(states, targets, dt),
+                "flown_s": len(states) * dt,
+                "lap_flown": maneuver.lap_flown(len(states), dt),
+            }
+            for states, targets, dt in flights
+        ]
+        measured = [e for e in per if e["lap_flown"]]
     out: dict = {"maneuver": {"name": maneuver.name, **dataclasses.asdict(maneuver)}, "maneuver_per_episode": per}
     keys = (
         ("overshoot_m", "overshoot_pct", "rise_s", "settling_s")
@@ -182,10 +196,12 @@ def summarise(maneuver: Step | FigureEight, flights: list[tuple[np.ndarray, np.n
         else ("tracking_rms_m", "tracking_max_m")
     )
     for key in keys:  # NaN where nothing was flown (interrupted in the first flight)
-        finite = [e[key] for e in per if math.isfinite(e[key])]
+        finite = [e[key] for e in measured if math.isfinite(e[key])]
         out[key] = float(np.mean(finite)) if finite else math.nan
     if isinstance(maneuver, Step):
         out["not_settled"] = sum(1 for e in per if not math.isfinite(e["settling_s"]))
+    else:
+        out["laps_not_flown"] = len(per) - len(measured)
     return out
 
 
@@ -198,7 +214,18 @@ def summary_line(s: dict) -> str:
             f"({s['overshoot_pct']:.1f} %), rise {s['rise_s']:.2f} s, settling {settle}"
             + (f" ({s['not_settled']} never settled)" if s["not_settled"] else "")
         )
+    head = f"  figure-eight {s['maneuver']['speed']:g} m/s  "
+    short = s.get("laps_not_flown", 0)
+    if short and short == len(s["maneuver_per_episode"]):
+        m = s["maneuver"]
+        ramp, lap = m["ramp_s"], 2.0 * math.pi * math.hypot(m["a"], 2.0 * m["b"]) / m["speed"]
+        flown = max(e["flown_s"] for e in s["maneuver_per_episode"])
+        return (
+            head + f"lap not flown: {flown:.1f} s flown, the ramp and the lap take {ramp + lap:.1f} s "
+            f"({ramp:g} s + {lap:.1f} s; --duration)"
+        )
     return (
-        f"  figure-eight {s['maneuver']['speed']:g} m/s  tracking RMS {s['tracking_rms_m'] * 100:.1f} cm, "
+        head + f"tracking RMS {s['tracking_rms_m'] * 100:.1f} cm, "
         f"largest {s['tracking_max_m'] * 100:.1f} cm (the lap after the ramp)"
+        + (f"; {short} of {len(s['maneuver_per_episode'])} flights ended before their lap did" if short else "")
     )

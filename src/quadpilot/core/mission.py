@@ -59,6 +59,30 @@ def circle_lap_s(radius: float = CIRCLE_RADIUS, speed: float = CIRCLE_SPEED) -> 
     return 2.0 * math.pi * radius / speed
 
 
+def circle_summary(episodes: list[dict]) -> dict:
+    """The second lap's figures (`judge`'s) averaged over the episodes that flew it: a shorter
+    --duration or a crash leaves a second half that is part of the first lap, or of no lap."""
+    laps = [e for e in episodes if e["two_laps_flown"]]
+    out = {"circle_lap_s": circle_lap_s(), "circle_second_laps_not_flown": len(episodes) - len(laps)}
+    if laps:
+        out["radial_rms_m"] = float(np.mean([e["radial_rms_m"] for e in laps]))
+        out["speed_error_mps"] = float(np.mean([e["speed_error_mps"] for e in laps]))
+    return out
+
+
+def circle_line(s: dict) -> str:
+    """quad-sitl's line of a `circle_summary`: the figures, or that no second lap was flown."""
+    short = s["circle_second_laps_not_flown"]
+    if "radial_rms_m" not in s:
+        two = 2 * s["circle_lap_s"]
+        return f"  circle (second lap)     not flown: the episodes ended before two laps ({two:.1f} s)"
+    return (
+        f"  circle (second lap)     radial RMS {s['radial_rms_m'] * 100:.2f} cm, "
+        f"speed error {s['speed_error_mps'] * 100:.2f} cm/s"
+        + (f" ({short} other episodes ended before their second lap)" if short else "")
+    )
+
+
 def default_duration_s(task: str) -> float:
     """s of flight an episode of `task` is judged on: 5 s (training's episode), two laps for circle."""
     return 2.0 * circle_lap_s() if task == "circle" else 5.0
@@ -204,7 +228,7 @@ def judge(
         )
         rms, spd = float(np.sqrt(np.mean(e_r**2))), float(np.mean(np.abs(e_v)))
         long_enough = len(states) * dt >= 2.0 * circle_lap_s() - dt
-        out.update(radial_rms_m=rms, speed_error_mps=spd)
+        out.update(radial_rms_m=rms, speed_error_mps=spd, two_laps_flown=long_enough)
         out["success"] = bool(
             not crash
             and long_enough

@@ -20,7 +20,7 @@ once (mps2-an386 for the M4F, mps2-an500 for the M7) and the result printed.
 
 Exit codes: 0 written and parity within tolerance; 1 the checkpoint cannot be used (malformed,
 truncated, not a quadpilot checkpoint), or the export or its parity check failed; 2 a bad flag
-(including a checkpoint path that does not exist, a policy.tar already exported, or an output that
+(including a checkpoint path that does not exist, a policy.tar or ONNX file already exported, or an output that
 cannot be written).
 """
 
@@ -62,6 +62,13 @@ def _check_args(args) -> Path:
             f"{ckpt} is a PX4 mc_raptor policy.tar, already exported; fly it with quad-sitl {shlex.quote(str(ckpt))} "
             "(quad-export reads the policy.pt quad-train writes)"
         )
+    if ckpt.suffix.lower() == ".onnx":
+        pt = ckpt.with_suffix(".pt")
+        source = f"; its checkpoint is {shlex.quote(str(pt))}" if pt.is_file() else ""
+        raise _BadFlag(
+            f"{ckpt} is an ONNX file, already exported; fly it with quad-sitl {shlex.quote(str(ckpt))} "
+            f"(quad-export reads the policy.pt quad-train writes{source})"
+        )
     if args.vehicle is not None:
         if args.format != "onnx":
             raise _BadFlag(f"--vehicle needs --format onnx (then export the .pt it writes with --format {args.format})")
@@ -86,7 +93,9 @@ def _check_args(args) -> Path:
     if args.target is not None and args.format != "c":
         raise _BadFlag(f"--target {args.target} needs --format c (it cross-compiles the C)")
     if out.resolve() == ckpt.resolve():
-        raise _BadFlag(f"--output {out} is the checkpoint itself; name another file")
+        if args.output is not None:
+            raise _BadFlag(f"--output {out} is the checkpoint itself; name another file")
+        raise _BadFlag(f"the default output {out} is the checkpoint itself; name another file with --output")
     if args.vehicle is not None:
         _check_retarget_output(out, ckpt)
     return out

@@ -465,16 +465,23 @@ def attitude_fields(state: np.ndarray, time_boot_ms: int) -> dict:
     }
 
 
+NO_FENCE_BREACHED = mavlink2.MAV_SYS_STATUS_GEOFENCE
+"""SYS_STATUS's geofence bit, set in health only: no fence is present or enabled, so none is breached.
+A health bit of 0 is an error (MAVLink), and MAVProxy's fence module says "fence breach" on the
+first SYS_STATUS without it, fence or none; ArduPilot sets it by default for the same reason
+(GCS_Common.cpp: "GEOFENCE always defaults to healthy")."""
+
+
 @_saturating(mavlink2.MAVLink_sys_status_message)
 def sys_status_fields(sensors: int, errors: int, received: int) -> dict:
     """Keyword arguments of `mav.sys_status_send` for a ground station: `sensors` (a
-    MAV_SYS_STATUS_SENSOR bit mask) present, enabled and healthy; no battery information (-1);
-    drop_rate_comm in c% and errors_comm from the count of messages dropped (`errors`) against those
-    used (`received`)."""
+    MAV_SYS_STATUS_SENSOR bit mask) present, enabled and healthy, and no fence breached
+    (`NO_FENCE_BREACHED`); no battery information (-1); drop_rate_comm in c% and errors_comm from the
+    count of messages dropped (`errors`) against those used (`received`)."""
     return {
         "onboard_control_sensors_present": sensors,
         "onboard_control_sensors_enabled": sensors,
-        "onboard_control_sensors_health": sensors,
+        "onboard_control_sensors_health": sensors | NO_FENCE_BREACHED,
         "load": 0,
         "voltage_battery": UINT16_UNKNOWN,
         "current_battery": -1,

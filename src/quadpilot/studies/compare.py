@@ -15,7 +15,9 @@ records the request, the machine and each run's exit code and wall-clock.
 return of both algorithms against environment steps and against training wall-clock, the mean over
 seeds with the min–max band), and into --doc the matched-settings table, the results and the commands,
 between the markers below; text outside the markers is kept, so the analysis written around the
-tables survives a regeneration.
+tables survives a regeneration. By default both go beside the first sweep (comparison.md and
+comparison/ in its parent directory), never into the repository's docs: the page in the repository
+is rewritten only when named, `--doc docs/comparison.md --figures docs/comparison`.
 """
 
 from __future__ import annotations
@@ -135,6 +137,19 @@ def plan(args) -> list[RunSpec]:
     return specs
 
 
+def planned_config(run_argv: list[str]) -> dict:
+    """The PPOConfig (as config.json holds it) of the first run `quad-compare run RUN_ARGV` trains: its
+    quad-train command line read as quad-train reads it, so the matched-settings table of a sweep can
+    be printed before the sweep is run (the table lists configuration, not measurements)."""
+    from quadpilot.train import options
+    from quadpilot.train.cli import build_parser as train_parser
+    from quadpilot.train.ppo import PPO
+
+    args = build_parser().parse_args(["run", *run_argv])
+    train_args = train_parser().parse_args(list(plan(args)[0].argv))
+    return options.make_config(PPO, options.explicit_options(train_args, PPO), train_args.preset).to_json()
+
+
 def cmd_run(args, argv: list[str]) -> int:
     from quadpilot.train.runs.loop import cpu_model
     from quadpilot.train.runs.runlog import write_json
@@ -231,10 +246,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--ray-address", metavar="ADDR", help="An existing Ray cluster (engine ray). Default: a local one.")
     r.add_argument("--out", required=True, metavar="DIR", help="Sweep directory (keep it out of the repository).")
-    rep = sub.add_parser("report", help="plots and docs/comparison.md from finished sweeps", allow_abbrev=False)
+    rep = sub.add_parser("report", help="plots and the comparison page from finished sweeps", allow_abbrev=False)
     rep.add_argument("sweeps", nargs="+", metavar="DIR", help="Sweep directories written by quad-compare run.")
-    rep.add_argument("--doc", default="docs/comparison.md", metavar="FILE", help="Default: docs/comparison.md.")
-    rep.add_argument("--figures", default="docs/comparison", metavar="DIR", help="Default: docs/comparison.")
+    rep.add_argument(
+        "--doc",
+        metavar="FILE",
+        help="Markdown file whose section between the markers is rewritten (created if missing). Default: "
+        "comparison.md beside the first sweep (in its parent directory); the repository's page is "
+        "docs/comparison.md, rewritten only when named here.",
+    )
+    rep.add_argument(
+        "--figures", metavar="DIR", help="Directory of the PNGs. Default: comparison/ beside the first sweep."
+    )
     return p
 
 
@@ -261,6 +284,9 @@ def _check_args(args) -> None:
             why = input_path_problem(d, "a sweep directory written by quad-compare run", directory=True)
             if why is not None:
                 raise UsageError(why)
+        beside = Path(os.path.abspath(args.sweeps[0])).parent  # the sweeps are kept out of the repository
+        args.doc = args.doc or str(beside / "comparison.md")
+        args.figures = args.figures or str(beside / "comparison")
         check_out_dir(Path(args.figures), "--figures")
         from quadpilot.console import check_output_path
 

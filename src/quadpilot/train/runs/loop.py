@@ -402,12 +402,17 @@ def resume(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
 # --- the loop --------------------------------------------------------------------------------
 
 
+def default_out(task: str, algo, seed: int) -> Path:
+    """The run directory without --out: runs/<task>-seed<seed> (SAC's runs/<task>-sac-seed<seed>)."""
+    return Path(f"runs/{task}-{algo.tag + '-' if algo.tag else ''}seed{seed}")
+
+
 def train(args, argv: list[str]) -> int:
     """`quad-train --algo ppo|sac ...` from parsed flags: start or resume, iterate, finish."""
     algo = ALGORITHMS[args.algo]
     explicit = options.explicit_options(args, algo)
     seed = explicit.get("seed", algo.Config.seed)
-    out = Path(args.out or f"runs/{args.task}-{algo.tag + '-' if algo.tag else ''}seed{seed}")
+    out = Path(args.out) if args.out else default_out(args.task, algo, seed)
     run = (resume if args.resume else start_fresh)(args, algo, explicit, out, argv)
     agent, cur, cfg = run.agent, run.cur, run.agent.cfg
     t0 = time.perf_counter()
