@@ -52,14 +52,14 @@ def table(files: list[Path]) -> str:
             n = len(rows)
             k = sum(r["hover_rule"] for r in rows)
             lo, hi = wilson(k, n)
-            ends = Counter(r["failsafe"] or "flew on" for r in rows)
+            ends = Counter(f"did not run: {r['failed']}" if "failed" in r else (r["failsafe"] or "flew on") for r in rows)
             lines.append(
                 f"| {sim} | {cell.get('imu', '–')} | {cell['condition']} | {cell['rate_hz']} | "
                 f"{k}/{n} ({lo:.0%}–{hi:.0%}) | "
                 f"{sum(r['crashed'] for r in rows)} | {sum('landed' in r['phases'] for r in rows)} | "
                 f"{_max(rows, 'touchdown_speed_mps', '.2f')} | {_max(rows, 'touchdown_tilt_deg', '.1f')} | "
                 f"{_max(rows, 'max_descent_speed_mps', '.2f')} | "
-                f"{sum(r['motors_off_airborne_steps'] for r in rows)} | "
+                f"{sum(r.get('motors_off_airborne_steps', 0) for r in rows)} | "
                 + "; ".join(f"{why} ({c})" for why, c in ends.most_common())
                 + " |"
             )
