@@ -83,8 +83,10 @@ class QuadBatch:
     (`core.observation.ObservationBuilder`), and the reward and termination terms land in arrays
     made once (`core.reward.StepTerms`). Each computes what `core.dynamics.step`,
     `core.observation.build_observation` and `core.reward` compute, bit for bit
-    (tests/train/test_env_bit_identity.py pins the outputs of the allocating code this replaced;
-    tests/train/test_env_allocation.py holds the step to no allocation). Two options still allocate
+    (tests/core/test_inplace_equivalence.py compares them with the allocating code on any machine;
+    tests/train/test_env_bit_identity.py pinned the outputs of the allocating code this replaced,
+    and pins today's since deliberate changes of the dynamics; tests/train/test_env_allocation.py
+    holds the step to no allocation). Two options still allocate
     per step: sensor noise (NumPy buffers the (N, 15) and (N, 27) updates of
     `SensorNoiseState.step`) and domain randomisation (a new ParamBatch, and pushes' forces, from
     `core.randomization`). A reset draws its drones' new episodes in arrays of their number.
