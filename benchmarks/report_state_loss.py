@@ -52,7 +52,9 @@ def table(files: list[Path]) -> str:
             n = len(rows)
             k = sum(r["hover_rule"] for r in rows)
             lo, hi = wilson(k, n)
-            ends = Counter(f"did not run: {r['failed']}" if "failed" in r else (r["failsafe"] or "flew on") for r in rows)
+            ends = Counter(
+                f"did not run: {r['failed']}" if "failed" in r else (r["failsafe"] or "flew on") for r in rows
+            )
             lines.append(
                 f"| {sim} | {cell.get('imu', '–')} | {cell['condition']} | {cell['rate_hz']} | "
                 f"{k}/{n} ({lo:.0%}–{hi:.0%}) | "

@@ -30,8 +30,9 @@ its yaw (`heading_within_reach`).
 
 One receive point (`Link.recv`, one system call per batch of messages) dispatching on
 `get_type()` through a table of handlers, one per message type (`flight.Flight.HANDLERS`). In real time,
-link loss is measured on the host's monotonic clock: no state for `link_timeout_s` (100 ms) latches
-a failsafe (motors off, disarmed, STATUSTEXT), which only a new `fly()` clears. In lockstep time is
+link loss is measured on the host's monotonic clock: no state and no HIL_SENSOR for `link_timeout_s`
+(100 ms) latches a failsafe (motors off, disarmed, STATUSTEXT), which only a new `fly()` clears (a
+HIL_SENSOR without its state is no link loss: see below). In lockstep time is
 the simulator's: between two steps nothing happens to the vehicle however long the host takes, so
 the node waits for the next step as long as the simulator holds the TCP link open (a closed or lost
 connection still ends the flight at once); over UDP, which has no connection to lose, up to
