@@ -11,7 +11,8 @@ runs setup the reader has done already (the quick start's training run a later b
 
 Each document's blocks run in order in one scratch copy of the repository's tracked files (a temp
 dir; nothing is written into the tree), with `.venv` a link to this interpreter's environment and
-PYTHONPATH the copy's `src`, so `.venv/bin/quad-train` runs the code under test. Each block runs
+PYTHONPATH the copy's `src`, so `.venv/bin/quad-train` runs the code under test (`.venv/bin` is first
+on PATH too, as in an activated environment, for the blocks that write `quad-train`). Each block runs
 with `bash -eo pipefail`: its first failing command fails it. docs/testing.md says how to mark a
 block."""
 
@@ -30,7 +31,7 @@ from sybil.example import Example
 from sybil.parsers.markdown import CodeBlockParser, SkipParser
 
 ROOT = Path(__file__).resolve().parents[2]
-DOCS = ["README.md"]
+DOCS = ["README.md", *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").glob("*.md"))]
 BLOCK_TIMEOUT_S = 300
 
 
@@ -82,6 +83,7 @@ def _run_block(example: Example) -> str | None:
     env["QUADPILOT_DOCS_QUICK"] = "1"
     env["PYTHONPATH"] = os.pathsep.join([str(ns["cwd"] / "src"), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env["MPLBACKEND"] = "Agg"
+    env["PATH"] = os.pathsep.join([str(ns["cwd"] / ".venv" / "bin"), env.get("PATH", "")])  # as if activated
     try:
         done = subprocess.run(
             ["bash", "-eo", "pipefail", "-c", example.parsed],
