@@ -42,15 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import quadpilot.sitl_node as sitl_node
-from quadpilot.console import (
-    Parser,
-    UsageError,
-    atomic_write,
-    check_output_path,
-    input_path_problem,
-    os_error_line,
-    quick,
-)
+from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, input_path_problem, os_error_line
 from quadpilot.console import int_in as _int_in
 from quadpilot.firmware_sim.cli import add_passed_on_flags, passed_on_tokens
 
@@ -357,9 +349,9 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_flag("--connect is for --node-only; without it quad-sitl starts its own simulator (--listen)")
     if (why := sitl_node.misused(args)) is not None:
         return _bad_flag(why)
-    if args.episodes is None:
-        args.episodes = 1 if args.node_only or sitl_node.commanded(args) else 10
-    args.episodes = quick(args.episodes, 1)  # QUADPILOT_DOCS_QUICK: one episode (console.docs_quick)
+    from quadpilot.console import quick  # QUADPILOT_DOCS_QUICK: one episode (console.docs_quick)
+
+    args.episodes = quick(args.episodes or (1 if args.node_only or sitl_node.commanded(args) else 10), 1)
     if args.policy is None:  # the shipped model --model names (hover by default), from the package's own data
         from quadpilot.runtime.shipped import shipped_policy
 

@@ -186,3 +186,16 @@ def test_a_renamed_flag_in_a_block_fails(tmp_path):
     ex.namespace["run_lines"] = {ex.line}
     with pytest.raises(Exception, match="exited with 2"):
         ex.evaluate()
+
+
+def test_the_quick_switch_caps_sizes_only_when_set(monkeypatch):
+    """console.quick: the full size without the switch; under it the smaller of the two, and the quick
+    size for a size left to its default (None). "0" and "" leave the switch off."""
+    from quadpilot.console import QUICK_ENV, docs_quick, quick
+
+    for off in ("", "0", "false"):
+        monkeypatch.setenv(QUICK_ENV, off)
+        assert not docs_quick() and quick(1_000_000, 2048) == 1_000_000 and quick(None, 2048) is None
+    monkeypatch.setenv(QUICK_ENV, "1")
+    assert docs_quick()
+    assert (quick(1_000_000, 2048), quick(100, 2048), quick(None, 1)) == (2048, 100, 1)
