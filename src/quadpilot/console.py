@@ -10,6 +10,9 @@ simulator's own command line, quad-demo, quad-compare, the montage).
   path it cannot write at the end.
 - `atomic_output` / `atomic_write`: the one way every file the package writes is written (run
   files, checkpoints, ONNX and C exports, plots, videos, reports): whole or not at all.
+- `docs_quick` / `quick`: the one switch (`QUADPILOT_DOCS_QUICK=1`) under which the commands the
+  documentation shows run as a smoke test (a few training steps, one or two episodes) instead of at
+  full size, so that tests/docs/test_doc_commands.py can run them as written.
 
 Imports nothing of ours and nothing heavy: the runtime, the simulator and the plots use it too."""
 
@@ -31,6 +34,24 @@ from typing import IO
 EXIT_OK, EXIT_BAD_FILE, EXIT_BAD_FLAG = 0, 1, 2
 NEGATIVE_VALUE = re.compile(r"^-\.?\d")
 """A token that starts with "-" and a digit (or "-." and a digit) is a flag's value."""
+
+
+QUICK_ENV = "QUADPILOT_DOCS_QUICK"
+"""The environment variable that shrinks every long command to a smoke test (docs/testing.md)."""
+
+
+def docs_quick() -> bool:
+    """Whether `QUADPILOT_DOCS_QUICK` is set to anything but "", "0" or "false": the documentation's
+    commands are being run as a test, at the smallest size that still exercises each step."""
+    return os.environ.get(QUICK_ENV, "").strip().lower() not in ("", "0", "false", "no")
+
+
+def quick(full, small):
+    """`small` under `QUADPILOT_DOCS_QUICK`, else `full`; a size given as None (the default) becomes
+    `small` too. The caller passes the smaller of what the user asked for and its own quick size."""
+    if not docs_quick():
+        return full
+    return small if full is None else min(full, small)
 
 
 class UsageError(Exception):

@@ -349,8 +349,9 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_flag("--connect is for --node-only; without it quad-sitl starts its own simulator (--listen)")
     if (why := sitl_node.misused(args)) is not None:
         return _bad_flag(why)
-    if args.episodes is None:
-        args.episodes = 1 if args.node_only or sitl_node.commanded(args) else 10
+    from quadpilot.console import quick  # QUADPILOT_DOCS_QUICK: one episode (console.docs_quick)
+
+    args.episodes = quick(args.episodes or (1 if args.node_only or sitl_node.commanded(args) else 10), 1)
     if args.policy is None:  # the shipped model --model names (hover by default), from the package's own data
         from quadpilot.runtime.shipped import shipped_policy
 

@@ -29,7 +29,7 @@ import itertools
 import sys
 import textwrap
 
-from quadpilot.console import Parser, UsageError, positive_float
+from quadpilot.console import Parser, UsageError, docs_quick, positive_float, quick
 
 from .options import (
     PPO_NETWORK_OPTIONS,
@@ -40,6 +40,9 @@ from .options import (
     resolve_vehicle,
     upper_bounds,
 )
+
+QUICK_TOTAL_STEPS, QUICK_EVAL_EPISODES = 2048, 2
+"""Under QUADPILOT_DOCS_QUICK: at most one small rollout of training and two evaluation episodes."""
 
 ALGOS = ("ppo", "sb3", "sac")
 """--algo: our PPO, a comparison baseline from another library trained on the same environment with
@@ -318,6 +321,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser().parse_args(argv)
+        if docs_quick():  # the documentation's commands run as a smoke test (console.docs_quick)
+            args.total_steps = quick(args.total_steps, QUICK_TOTAL_STEPS)
+            args.eval_episodes = quick(args.eval_episodes, QUICK_EVAL_EPISODES)
         if args.out is not None and not args.out.strip():
             raise UsageError("--out: empty path; expected the run directory")
         check_motor_tau(args)
