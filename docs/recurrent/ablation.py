@@ -83,20 +83,30 @@ def eval_runs(groups: dict[str, list[Path]], episodes: int) -> dict:
                     k: r[k]
                     for k in ("success_rate", "crash_rate", "mean_error_last_window_m", "max_error_last_window_m")
                 }
+                err = r["mean_error_last_window_m"]  # None: every episode crashed
+                err_text = "– (every episode crashed)" if err is None else f"{err * 100:.2f} cm"
                 print(
-                    f"{d.name:12s} {name:26s} success {r['success_rate']:.2f} error "
-                    f"{r['mean_error_last_window_m'] * 100:.2f} cm ({time.perf_counter() - t0:.1f} s)",
+                    f"{d.name:12s} {name:26s} success {r['success_rate']:.2f} error {err_text} "
+                    f"({time.perf_counter() - t0:.1f} s)",
                     flush=True,
                 )
             out["runs"][str(d)] = row
     return out
 
 
-def _cell(values: list[float], fmt: str) -> str:
-    v = np.asarray(values, float)
+def _cell(values: list, fmt: str) -> str:
+    """Mean over seeds (min–max) of the values that exist: a seed whose every episode crashed has no
+    error (None) and is left out; "–" when no seed has one."""
+    v = np.asarray([x for x in values if x is not None], float)
+    if len(v) == 0:
+        return "–"
     if len(v) == 1:
         return fmt.format(v[0])
     return f"{fmt.format(v.mean())} ({fmt.format(v.min())}–{fmt.format(v.max())})"
+
+
+def _cm(value):
+    return None if value is None else value * 100
 
 
 def tables(data: dict) -> str:
@@ -121,7 +131,7 @@ def tables(data: dict) -> str:
         "|---|" + "---:|" * len(conds),
     ]
     for g, rows in groups.items():
-        cells = [_cell([r["results"][c]["mean_error_last_window_m"] * 100 for r in rows], "{:.2f}") for c in conds]
+        cells = [_cell([_cm(r["results"][c]["mean_error_last_window_m"]) for r in rows], "{:.2f}") for c in conds]
         lines.append(f"| {LABELS.get(g, g)} | " + " | ".join(cells) + " |")
     lines += [
         "",

@@ -141,12 +141,17 @@ def plot(runs: list[dict], png: Path, title: str) -> Path:
         ax.set_ylim(-2, 102)
     axes[0, 0].set_ylabel("evaluation success (%)")
     axes[1, 0].set_ylabel("evaluation error, last 2 s (cm)")
+    # errors on a log axis when there are any: every evaluation of a short run may have crashed (None)
+    erred = any(np.any(np.nan_to_num(r["metrics"]["eval_error_m"], nan=0.0) > 0) for r in runs)
     for ax in axes[1]:
-        ax.set_yscale("log")
+        if erred:
+            ax.set_yscale("log")
         ax.axhline(5, color="0.4", lw=0.8, ls="--")
     axes[1, 0].set_xlabel("environment steps")
-    axes[1, 1].set_xlabel("training seconds (evaluation excluded; log scale)")
-    for ax in axes[:, 1]:
+    # seconds on a log axis, when there are any: a run too short to clock a positive time has none
+    timed = any(np.any(r["metrics"]["time_s"][np.isfinite(r["metrics"]["eval_success_rate"])] > 0) for r in runs)
+    axes[1, 1].set_xlabel("training seconds (evaluation excluded" + ("; log scale)" if timed else ")"))
+    for ax in axes[:, 1] if timed else ():
         ax.set_xscale("log")
     for ax in axes.flat:
         ax.grid(alpha=0.3)
