@@ -102,7 +102,7 @@ class Flight:
         self.last_sensor_time = -1
         self.loss: StateLoss | None = None  # the state stream is silent: what flies meanwhile
         self.calibration = ImuCalibration(monitor.policy.info.vehicle.gravity)  # IMU biases, for the estimate
-        self.landed = False  # the state-loss landing touched down: motors off to the end
+        self.estimate_values: list = []  # the estimate of the last step without a state, as floats
         self.unarmed_since: int | None = None  # time_usec of the first HIL_SENSOR while no state ever came
         self.received = 0
         # the policy's clock on simulated time (see the module docstring)
@@ -213,12 +213,15 @@ class Flight:
         every_step = self.own_observation is not None  # a contract of its own: every step (see policy.Policy)
         tick = not blind and (every_step or self.next_tick_us is None or t_us >= self.next_tick_us - TICK_TOLERANCE_US)
         if loss is not None and loss.phase != "policy":  # holding, landing or landed: every step
-            s = loss.estimate_state() if lost else self.state_values[:9] + list(wire.gyro_values_from_hil_sensor(msg))
+            s = (
+                list(self.estimate_values)
+                if lost
+                else self.state_values[:9] + list(wire.gyro_values_from_hil_sensor(msg))
+            )
+            before = len(loss.changes)
             cmd = self.held = loss.command(s, t_us)
+            self._loss_changes(before)  # the touchdown
             if loss.phase == "landed":
-                if not self.landed:
-                    self.landed = True
-                    self._loss_note(t_us, "landed", loss.changes[-1][2])
                 self.held_armed = self.motors_on = False
             self.held_source = loss.phase
         elif blind and not self.motors_on:
@@ -232,7 +235,7 @@ class Flight:
         elif tick:
             # the state flown on, as floats, with the body rates of the gyro
             if on_estimate:  # the state stream is silent: the estimate from HIL_SENSOR
-                s = loss.estimate_state()
+                s = list(self.estimate_values)
             else:
                 s = (self.estimate.tolist() if self.estimate_time == t_us else self.state_values)[:9]
                 s += wire.gyro_values_from_hil_sensor(msg)
@@ -347,12 +350,18 @@ class Flight:
             )
             self._loss_note(t_us, "state lost", "flying on the estimate")
         before = len(self.loss.changes)
-        phase = self.loss.update(msg)
-        self.log.estimates.append((t_us * 1e-6, self.loss.estimate_state()))
-        if len(self.loss.changes) > before:
+        self.loss.update(msg)
+        self.estimate_values = self.loss.estimate_state()  # once a step: the log keeps it, fliers copy it
+        self.log.estimates.append((t_us * 1e-6, self.estimate_values))
+        self._loss_changes(before)
+
+    def _loss_changes(self, before: int) -> None:
+        """The loss's phase changes from its `before`-th on: noted; a hold hands the vehicle over (the
+        policy flies again by the usual hand-back)."""
+        for t_us, phase, why in self.loss.changes[before:]:
             if phase == "hold":
-                self.monitor.take_over("state_lost")  # the policy flies again by the usual hand-back
-            self._loss_note(t_us, phase, self.loss.changes[-1][2])
+                self.monitor.take_over("state_lost")
+            self._loss_note(t_us, phase, why)
 
     def _loss_note(self, t_us: int, what: str, why: str) -> None:
         """A change of what flies while the state is lost: into the log and to the ground station."""

@@ -227,7 +227,7 @@ class Node:
             log.home = flight.home
             if flight.loss is not None and flight.loss.latched and log.failsafe is None:
                 # the state-loss landing is a failsafe (never a success), not a crash
-                log.failsafe = "state lost: landed" if flight.landed else "state lost: landing"
+                log.failsafe = f"state lost: {'landed' if flight.loss.phase == 'landed' else 'landing'}"
             if commander is not None:
                 log.commander = commander_summary(commander, gcs, flight.disarmed_at)
             link.close()

@@ -112,7 +112,6 @@ class StateLoss:
         self._still_us: int | None = None  # since when the descent has not been descending
         self._descend_us: int | None = None  # when the descent began
         self._descending = False  # it has been seen descending faster than land_speed
-        self.landed_at_us: int | None = None
         self.changes: list[tuple[int, str, str]] = []
         """(time_usec, phase, why) of every phase change, in order."""
 
@@ -162,7 +161,6 @@ class StateLoss:
                 if self._still_us is None:
                     self._still_us = t_us
                 elif (t_us - self._still_us) * 1e-6 >= self.cfg.land_time_s:
-                    self.landed_at_us = t_us
                     self._enter("landed", t_us, f"not descending for {self.cfg.land_time_s:g} s: landed, motors off")
                     return np.zeros(NUM_MOTORS, np.float32)
             else:
