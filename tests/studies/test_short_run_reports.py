@@ -47,3 +47,20 @@ def test_the_sac_figure_is_drawn_for_runs_that_clocked_no_time(tmp_path):
 
     png = sac_compare.plot([run("ppo"), run("sac")], tmp_path / "f.png", "short")
     assert Path(png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_sac_figure_is_drawn_when_runs_clocked_time_but_have_no_error(tmp_path):
+    """Seconds on the clock (a log axis for them) but every evaluation crashed: the error panel against
+    seconds has no point, so its own x axis stays linear (the SAC block of docs/comparison.md, run short)."""
+
+    def run(algo, evaluated):
+        metrics = {
+            "global_step": np.array([2048.0]),
+            "time_s": np.array([0.05]),
+            "eval_success_rate": np.array([0.0 if evaluated else np.nan]),
+            "eval_error_m": np.array([np.nan]),
+        }
+        return {"algo": algo, "metrics": metrics}
+
+    png = sac_compare.plot([run("ppo", True), run("sac", False)], tmp_path / "f.png", "short")
+    assert Path(png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

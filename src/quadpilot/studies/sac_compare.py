@@ -111,6 +111,11 @@ def table(runs: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _has_positive(points: list[tuple[np.ndarray, np.ndarray]], coord: int) -> bool:
+    """Whether one of the (x, y) points drawn on a panel (both finite) is > 0 on `coord` (0: x, 1: y)."""
+    return any(np.any(xy[coord][np.isfinite(xy[0]) & np.isfinite(xy[1])] > 0) for xy in points)
+
+
 def plot(runs: list[dict], png: Path, title: str) -> Path:
     """Periodic evaluation success and error against environment steps and training seconds."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -124,6 +129,7 @@ def plot(runs: list[dict], png: Path, title: str) -> Path:
     colours = {"ppo": "C0", "sac": "C3"}
     labels = {"ppo": "PPO", "sac": "SAC"}
     seen = set()
+    drawn = {(i, j): [] for i in range(2) for j in range(2)}  # each panel's (x, y) data, for its log axes
     for r in runs:
         m = r["metrics"]
         ev = np.isfinite(m["eval_success_rate"])
@@ -132,26 +138,29 @@ def plot(runs: list[dict], png: Path, title: str) -> Path:
         kw = {"color": colours[r["algo"]], "lw": 1.1, "alpha": 0.85, "marker": "o", "ms": 2}
         label = labels[r["algo"]] if r["algo"] not in seen else None
         seen.add(r["algo"])
-        axes[0, 0].plot(x_steps, succ, label=label, **kw)
-        axes[0, 1].plot(x_s, succ, **kw)
-        axes[1, 0].plot(x_steps, err, **kw)
-        axes[1, 1].plot(x_s, err, **kw)
+        for (i, j), xy in {
+            (0, 0): (x_steps, succ),
+            (0, 1): (x_s, succ),
+            (1, 0): (x_steps, err),
+            (1, 1): (x_s, err),
+        }.items():
+            axes[i, j].plot(*xy, label=label if (i, j) == (0, 0) else None, **kw)
+            drawn[i, j].append(xy)
     for ax in axes[0]:
         ax.axhline(95, color="0.4", lw=0.8, ls="--")
         ax.set_ylim(-2, 102)
     axes[0, 0].set_ylabel("evaluation success (%)")
     axes[1, 0].set_ylabel("evaluation error, last 2 s (cm)")
-    # errors on a log axis when there are any: every evaluation of a short run may have crashed (None)
-    erred = any(np.any(np.nan_to_num(r["metrics"]["eval_error_m"], nan=0.0) > 0) for r in runs)
-    for ax in axes[1]:
-        if erred:
+    # a log axis only where that panel has a point with a positive value on it: every evaluation of a
+    # short run may have crashed (error None), and a run too short may clock no positive time
+    for j, ax in enumerate(axes[1]):
+        if _has_positive(drawn[1, j], 1):
             ax.set_yscale("log")
         ax.axhline(5, color="0.4", lw=0.8, ls="--")
     axes[1, 0].set_xlabel("environment steps")
-    # seconds on a log axis, when there are any: a run too short to clock a positive time has none
-    timed = any(np.any(r["metrics"]["time_s"][np.isfinite(r["metrics"]["eval_success_rate"])] > 0) for r in runs)
-    axes[1, 1].set_xlabel("training seconds (evaluation excluded" + ("; log scale)" if timed else ")"))
-    for ax in axes[:, 1] if timed else ():
+    timed = [axes[i, 1] for i in range(2) if _has_positive(drawn[i, 1], 0)]
+    axes[1, 1].set_xlabel("training seconds (evaluation excluded" + ("; log scale)" if axes[1, 1] in timed else ")"))
+    for ax in timed:
         ax.set_xscale("log")
     for ax in axes.flat:
         ax.grid(alpha=0.3)
