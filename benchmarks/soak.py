@@ -35,10 +35,12 @@ import numpy as np
 
 from link_faults import machine
 from quadpilot.autopilot.node import Node, NodeConfig
+from quadpilot.console import quick
 from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.sitl import SHIPPED_HOVER, _start_simulator
 
 RATE_HZ = 100
+QUICK_EPISODES, QUICK_EPISODE_S = 2, 2
 
 
 def _malloc_trim():
@@ -74,6 +76,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--note", default="", help="a line on the machine's state")
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
+    # QUADPILOT_DOCS_QUICK (console.docs_quick): two episodes of 2 s, as a smoke test of the script
+    args.steps, args.seconds = (
+        quick(args.steps, QUICK_EPISODES * QUICK_EPISODE_S * RATE_HZ),
+        quick(args.seconds, QUICK_EPISODES * QUICK_EPISODE_S),
+    )
+    args.episodes = quick(args.episodes, QUICK_EPISODES)
     total_s = args.seconds if args.realtime else args.steps / RATE_HZ
     episode_s = total_s / args.episodes
     steps_per_episode = round(episode_s * RATE_HZ)

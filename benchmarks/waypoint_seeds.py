@@ -19,6 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from quadpilot.console import quick
 from quadpilot.train.cli import main as train
 from quadpilot.train.runs.loop import machine
 
@@ -52,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--total-steps", type=int, default=TOTAL_STEPS)
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
+    args.seeds = args.seeds[: quick(len(args.seeds), 2)]  # QUADPILOT_DOCS_QUICK: two seeds (quad-train's steps cap too)
     runs = []
     with tempfile.TemporaryDirectory(prefix="waypoint-seeds-") as tmp:
         for seed in args.seeds:
