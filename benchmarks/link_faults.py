@@ -33,6 +33,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from quadpilot.console import docs_quick, quick
+
 IMPAIRMENTS = {
     "none": None,
     "loss 1%": "loss=1%",
@@ -58,6 +60,8 @@ FAULTS = {
 RATES_HZ = (100, 250)
 GOALS = {"loss 5%": 0.95, "delay 20 ms": 0.95}
 """Conditions with a success target; they fly `--goal-episodes` (a rate near 95 % needs more than a few)."""
+QUICK_CONDITIONS = ("none", "loss 20%", "delay 10 ms", *GOALS, "gyro spike")
+"""What QUADPILOT_DOCS_QUICK flies: the conditions docs/robustness.md's text quotes, and one sensor fault."""
 
 
 def _command(rate: int, episodes: int, seed: int, impair: str | None, fault: str | None, out: Path) -> list[str]:
@@ -149,6 +153,11 @@ def main(argv: list[str] | None = None) -> int:
     todo = [("link", n, s) for n, s in IMPAIRMENTS.items()] + [("fault", n, s) for n, s in FAULTS.items()]
     if args.only:
         todo = [t for t in todo if t[1] in args.only]
+    elif docs_quick():  # console.docs_quick: the flights docs/robustness.md quotes, and one sensor fault
+        todo = [t for t in todo if t[1] in QUICK_CONDITIONS]
+    # and one episode each, at the first rate (quad-sitl flies one episode under the switch anyway)
+    args.rates, args.episodes = args.rates[: quick(len(args.rates), 1)], quick(args.episodes, 1)
+    args.goal_episodes = quick(args.goal_episodes, 1)
     info = machine()
 
     def n(name: str) -> int:

@@ -36,6 +36,7 @@ from pathlib import Path
 
 from quadpilot.autopilot.flight_log import episode_summary
 from quadpilot.autopilot.node import Node, NodeConfig
+from quadpilot.console import quick
 from quadpilot.firmware_sim.faults import parse_faults
 from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
@@ -137,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.episodes < 1:
         p.error("--episodes must be at least 1")
+    args.episodes = quick(args.episodes, 1)  # QUADPILOT_DOCS_QUICK (console.docs_quick): one episode a cell
     t0 = time.perf_counter()
     cells, trace = [], None
     for imu, noisy in IMUS.items():

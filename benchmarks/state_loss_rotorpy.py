@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from quadpilot.console import quick
+
 ROOT = Path(__file__).resolve().parents[1]
 SHORT_S, SHORT_FLIGHT_S = 0.5, 5.0
 LONG = ((5.0, 14.0), (math.inf, 14.0))
@@ -83,8 +85,11 @@ def _row(k: int, f: dict) -> dict:
     }
 
 
-def run(rates=(100, 250), episodes: int = 20, out: Path | None = None, long_episodes: int = 5) -> dict:
-    """Fly every rate's dropouts (module docstring) and write the JSON to `out` (when given); the data."""
+def run(
+    rates=(100, 250), episodes: int = 20, out: Path | None = None, long_episodes: int = 5, cells: int | None = None
+) -> dict:
+    """Fly every rate's dropouts (module docstring) and write the JSON to `out` (when given); the data.
+    `cells` keeps only the first that many of each rate's conditions (a smoke test; None: all)."""
     t = _load_test_module()
     t0 = time.perf_counter()
     data = {
@@ -102,6 +107,7 @@ def run(rates=(100, 250), episodes: int = 20, out: Path | None = None, long_epis
     for baro in (False, True):
         for name, (dropout_s, flight_s) in zip(("dropout 5 s", "dropout never ends"), LONG, strict=True):
             plan.append((name, dropout_s, flight_s, long_episodes, baro))
+    plan = plan[:cells]
     for rate in rates:
         for name, dropout_s, flight_s, n, baro in plan:
             c0 = time.perf_counter()
@@ -129,7 +135,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--long-episodes", type=int, default=5, help="episodes of each landing flight per rate (5)")
     p.add_argument("--rates", default="100,250", help="simulator rates, Hz")
     a = p.parse_args(argv)
-    run(tuple(float(r) for r in a.rates.split(",")), a.episodes, a.out, a.long_episodes)
+    rates = tuple(float(r) for r in a.rates.split(","))
+    # QUADPILOT_DOCS_QUICK (console.docs_quick): one episode of the first two conditions, at the first rate
+    rates, a.episodes, a.long_episodes = rates[: quick(len(rates), 1)], quick(a.episodes, 1), quick(a.long_episodes, 1)
+    run(rates, a.episodes, a.out, a.long_episodes, cells=quick(None, 2))
     return 0
 
 
