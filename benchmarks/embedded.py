@@ -41,6 +41,7 @@ import numpy as np
 from quadpilot.ccode import generate as cgen
 from quadpilot.ccode import target as ctarget
 from quadpilot.ccode.bench import cortex_m4_estimate, operation_count
+from quadpilot.console import docs_quick
 from quadpilot.modelfile.model import initializer_arrays, read_model
 from quadpilot.runtime.backends import load_policy
 from quadpilot.train.runs.loop import cpu_model
@@ -129,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--quick", action="store_true", help="100 random observations and a 50-step flight")
     args = p.parse_args(argv)
+    args.quick = args.quick or docs_quick()  # QUADPILOT_DOCS_QUICK (console.docs_quick): the smoke test's inputs
     random, flight = (100, 50) if args.quick else (1_000, 300)
     results = []
     with tempfile.TemporaryDirectory(prefix="embedded-") as tmp:
