@@ -35,7 +35,7 @@ from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timezone
 from pathlib import Path
 
-from quadpilot.console import BadFile, Parser, UsageError, run_command
+from quadpilot.console import BadFile, Parser, UsageError, quick, run_command
 
 from .compare_report import ALGOS, SWEEP, cmd_report
 
@@ -155,6 +155,7 @@ def cmd_run(args, argv: list[str]) -> int:
     from quadpilot.train.runs.runlog import write_json
 
     ray = _import_ray() if args.engine == "ray" else None  # before anything is written
+    args.seeds = args.seeds[: quick(len(args.seeds), 1)]  # QUADPILOT_DOCS_QUICK: one seed (quad-train shortens itself)
     out = Path(args.out)
     specs = plan(args)
     todo, done = [], []
