@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import BadFile, Parser, UsageError, atomic_write, run_command
+from quadpilot.console import BadFile, Parser, UsageError, atomic_write, quick, run_command
 from quadpilot.core import dynamics
 from quadpilot.core.mission import window_success, wrap_angle, yaw_errors
 from quadpilot.core.observation import build_observation
@@ -50,6 +50,8 @@ from quadpilot.train.envs import EnvConfig, QuadBatch
 GRID_MASS = (0.85, 1.0, 1.15)
 GRID_K_F = (0.92, 1.0, 1.08)
 GRID_WIND = (0.0, 1.0)
+QUICK_EPISODES = 4
+"""In-process episodes per cell (and on the nominal plant) under QUADPILOT_DOCS_QUICK."""
 SETTLE_TOL_M = 0.05  # m, "settled": within 5 cm of the target and staying (the hover bar's tolerance)
 SETTLE_FINAL_TOL_M = 0.01  # m, the classical settling time: within 1 cm of the final position
 
@@ -474,7 +476,8 @@ def write_model_eval(eval_path: Path, name: str, report: dict, policy) -> dict:
     from quadpilot.train.evaluate import evaluate
 
     data = json.loads(Path(eval_path).read_text())
-    data["nominal"] = evaluate(policy, dataclasses.replace(policy.env_config, randomization=None), episodes=100)
+    nominal = dataclasses.replace(policy.env_config, randomization=None)
+    data["nominal"] = evaluate(policy, nominal, episodes=quick(100, QUICK_EPISODES))
     data["grid_in_process"] = report["grid"][name]
     if name in report.get("sitl", {}):
         data["sitl"] = {"backend": "numpy", "lockstep": True, "grid": report["sitl"][name]}
@@ -542,6 +545,11 @@ def _study(args) -> int:
             raise UsageError(f"--write-eval {spec!r}: no --policy named {spec.partition('=')[0]!r}")
     args.out.mkdir(parents=True, exist_ok=True)
     cells = grid()
+    # QUADPILOT_DOCS_QUICK (console.docs_quick): one cell and one scenario, a few episodes and drones, one
+    # quad-sitl episode
+    cells, scenarios = cells[: quick(len(cells), 1)], SCENARIOS[: quick(len(SCENARIOS), 1)]
+    args.drones = quick(args.drones, 2)
+    args.episodes, args.sitl_episodes = quick(args.episodes, QUICK_EPISODES), quick(args.sitl_episodes, 1)
     report: dict = {
         "machine": _machine(),
         "command": " ".join(["python -m quadpilot.studies.robustness", *sys.argv[1:]]),
@@ -551,7 +559,7 @@ def _study(args) -> int:
     report["grid_s"] = time.perf_counter() - t0
     print(f"grid done in {report['grid_s']:.0f} s", file=sys.stderr, flush=True)
     scfg = hover_config(dtype="float64")
-    report["scenarios"] = [run_scenario(c, sc, scfg, args.drones) for sc in SCENARIOS for c in controllers]
+    report["scenarios"] = [run_scenario(c, sc, scfg, args.drones) for sc in scenarios for c in controllers]
     if args.sitl:
         t1 = time.perf_counter()
         missing = [f"{n} ({path})" for n, path in onnx.items() if not path.exists()]
