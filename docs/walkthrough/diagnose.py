@@ -52,11 +52,14 @@ def _parse_sets(items: list[str]) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from quadpilot.console import quick
     from quadpilot.train.envs import make_config
     from quadpilot.train.evaluate import evaluate
     from quadpilot.train.ppo import PPO, NonFiniteError, PPOConfig
     from quadpilot.train.runs.runlog import MetricsLog, write_json
 
+    # QUADPILOT_DOCS_QUICK (console.docs_quick): one rollout and two evaluation episodes, as quad-train's
+    args.total_steps, args.eval_episodes = quick(args.total_steps, 2048), quick(args.eval_episodes, 2)
     overrides = {"threads": 1, "total_steps": args.total_steps, **_parse_sets(args.set)}
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
