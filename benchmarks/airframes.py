@@ -56,6 +56,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from quadpilot.console import docs_quick, quick
 from report_airframes import TUNED_FROM
 from rotorpy_flights import ATTEMPTS, ROTORPY_DEFAULT, ROTORPY_FLIGHTS, rotorpy_flight
 
@@ -543,6 +544,8 @@ def main(argv: list[str] | None = None) -> int:
         g.add_argument("--flight", action="append", choices=sorted(FLIGHTS), help=flight)
     args = p.parse_args(argv)
     airframes = args.airframe or list(AIRFRAMES)
+    if docs_quick() and args.cmd != "rotorpy":  # console.docs_quick: one airframe, flight and episode
+        airframes, args.flight, args.episodes = airframes[:1], args.flight or list(FLIGHTS)[:1], quick(args.episodes, 1)
     if args.cmd == "rotorpy":  # its --flight names RotorPy's flights
         run_rotorpy(args.out, airframes, args.policies, args.flight, args.controller, args.missed)
         return 0
