@@ -208,6 +208,14 @@ def load_json(path: Path):
     return _JSON_CACHE[path]
 
 
+def _short_run() -> bool:
+    """Whether the data comes from the documentation's commands run short (console.docs_quick): there a
+    short-trained policy may crash every episode, and a figure that selects only blanks prints "–"."""
+    from quadpilot.console import docs_quick
+
+    return docs_quick()
+
+
 def resolve(ref: str, sources: dict[str, str], root: Path = ROOT) -> str:
     """The text a mark's reference must print: the JSON value, reduced, scaled and formatted."""
     head, _, fmt = ref.rpartition(" ")
@@ -225,6 +233,8 @@ def resolve(ref: str, sources: dict[str, str], root: Path = ROOT) -> str:
         red = m.group("reduce")
         if red != "len":  # blank cells (None) are not values; `len` counts what the path selected
             value = [v for v in value if v is not None]
+            if not value and _short_run():
+                return "–"
             if not value:
                 raise FigureError(f"{ref!r}: the path selects no value to reduce")
         value = _percentile(value, int(red[1:])) if red.startswith("p") else REDUCERS[red](value)

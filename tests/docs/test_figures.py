@@ -125,3 +125,17 @@ def test_marks_walk_keys_lists_filters_and_reductions(tmp_path):
     for bad in ("d#runs/z/err_m :.1f", "d#runs/*/err_m :.1f", "d#runs/a/group :.1f", "d#runs/a/err_m %.1f"):
         with pytest.raises(figures.FigureError):
             figures.resolve(bad, src, tmp_path)
+
+
+def test_a_figure_of_blanks_is_an_error_but_a_dash_for_a_short_run(tmp_path, monkeypatch):
+    """Every selected value blank (None: a short-trained policy crashed every episode) fails the
+    update, unless the documentation's commands are being run short (QUADPILOT_DOCS_QUICK)."""
+    from quadpilot.console import QUICK_ENV
+
+    (tmp_path / "d.json").write_text(json.dumps({"rows": [{"v": None}, {"v": None}]}))
+    ref, src = "d#rows/*/v max*100:.1f", {"d": "d.json"}
+    monkeypatch.delenv(QUICK_ENV, raising=False)
+    with pytest.raises(figures.FigureError, match="no value"):
+        figures.resolve(ref, src, tmp_path)
+    monkeypatch.setenv(QUICK_ENV, "1")
+    assert figures.resolve(ref, src, tmp_path) == "–"
