@@ -551,8 +551,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     chosen = {f: FLIGHTS[f] for f in args.flight} if args.flight else None
     if args.cmd in ("generalist", TUNED):
-        learned = run_generalist if args.cmd == "generalist" else run_tuned
-        learned(args.out, airframes, args.policy, args.policies, args.episodes, chosen)
+        if args.cmd == "generalist":
+            run_generalist(args.out, airframes, args.policy, args.policies, args.episodes, chosen)
+        else:  # under the switch, one short rollout of a few drones (TUNE's 256 make one rollout long)
+            quick_flags = ["--num-envs", "16"] if docs_quick() else []
+            run_tuned(args.out, airframes, args.policy, args.policies, args.episodes, chosen, quick_flags)
         return 0
     run(args.out, airframes, args.episodes, args.merge, args.policies, args.reuse, args.train, chosen)
     return 0
