@@ -2,14 +2,14 @@
 
 Lockstep (the simulator advances one step per actuator message, as fast as the two processes go):
 the shipped hover ONNX file flown by the node (this process) against the simulator (its own
-process, `python -m quadpilot.firmware_sim`) over loopback TCP, one 20 s episode (2,000 control
+process, `python -m quadpilot.simulator`) over loopback TCP, one 20 s episode (2,000 control
 steps) per round, on each runtime backend. Baselines in the same run: real time (100 steps/s at
 the 100 Hz control rate) and the same policy stepping `core.dynamics` in this process with no wire
 at all (what the two processes and MAVLink cost).
 
 Against commit bb5efb7 (`test_lockstep_vs_baseline`): that commit's node flying against that
 commit's simulator, and today's against today's, each in a child process of its own (the node
-there, its simulator a grandchild: `python -m quadpilot.firmware_sim` of the same source, by
+there, its simulator a grandchild: `python -m quadpilot.simulator` of the same source, by
 `baseline.py`'s PYTHONPATH rule), one 20 s episode (2,000 steps) per round, rounds alternating
 between them so that the load of a shared machine falls on all alike. A third child flies today's
 code with the lockstep spin off on both sides (`transport.Link.spin_s`): what the spin adds. Each
@@ -58,7 +58,7 @@ REALTIME_S = 5.0
 
 
 def _simulator(*flags):
-    cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0", *flags]
+    cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0", *flags]
     proc, address = _start_simulator(cmd)
     assert proc is not None, address
     return proc, address
@@ -110,7 +110,7 @@ from quadpilot.sitl import _start_simulator
 policy, backend, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])
 no_spin = sys.argv[4:] == ["no-spin"]  # today's only: both sides sleep at once, as before the spin
 steps = round(duration * 100)
-cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
+cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
 proc, address = _start_simulator(cmd + ["--max-steps", str(steps + 10)] + (["--spin-us=0"] if no_spin else []))
 if proc is None:
     raise SystemExit(f"simulator did not start: {address}")

@@ -3,7 +3,7 @@ that exact file over MAVLink against a software-in-the-loop quadrotor.
 
 `import quadpilot` is light: it imports neither torch nor gymnasium. Subpackages: `core` (NumPy
 model), `train` (torch, gymnasium), `export` (torch, onnx), `link` (MAVLink contract),
-`runtime` and `firmware_sim` (NumPy, ONNX Runtime, pymavlink).
+`runtime` and `simulator` (NumPy, ONNX Runtime, pymavlink).
 """
 
 __version__ = "0.1.0"

@@ -1,6 +1,6 @@
 """quad-sitl: fly an exported policy against a software-in-the-loop quadrotor over MAVLink.
 
-Starts the simulator (`quadpilot.firmware_sim`) as a separate process listening on loopback TCP,
+Starts the simulator (`quadpilot.simulator`) as a separate process listening on loopback TCP,
 runs the autopilot node (`quadpilot.autopilot.node`) in this process for each episode, and prints
 a summary: success rate, position errors, crashes, steps/s, control-loop latency, failsafes and
 dropped packets. With no policy it flies the shipped hover model.
@@ -44,7 +44,7 @@ import numpy as np
 import quadpilot.sitl_node as sitl_node
 from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, input_path_problem, os_error_line
 from quadpilot.console import int_in as _int_in
-from quadpilot.firmware_sim.cli import add_passed_on_flags, passed_on_tokens
+from quadpilot.simulator.cli import add_passed_on_flags, passed_on_tokens
 
 # The shipped models are package data (`runtime.shipped`): in a source checkout this is models/.
 SHIPPED_HOVER = (Path(__file__).parent / "models").resolve() / "hover" / "policy.onnx"
@@ -215,7 +215,7 @@ def _die_with_parent():
 
 
 class _Simulator:
-    """The simulator process (`python -m quadpilot.firmware_sim`), started so that it dies with
+    """The simulator process (`python -m quadpilot.simulator`), started so that it dies with
     this one: `stop()` in a finally on every exit path, and PR_SET_PDEATHSIG for the paths that run
     no Python (kill -9)."""
 
@@ -315,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     p = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     if "--sim-only" in argv:
-        from quadpilot.firmware_sim.sim import main_sim_only
+        from quadpilot.simulator import main_sim_only
 
         return main_sim_only(argv)
     try:
@@ -333,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     rest = _sim_args(args)
     if rest:  # the simulator's own flags (--mass-scale, --wind, --imu-noise, ...): checked here, passed on
         from quadpilot.core.vehicle_file import VehicleFileError
-        from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
+        from quadpilot.simulator import build_sim_parser, config_from_args
 
         if args.node_only and (others := [t for t in rest if not t.startswith("--vehicle=")]):
             return _bad_flag(f"{' '.join(others)}: simulator flags, but --node-only runs no simulator")
@@ -431,8 +431,8 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory(prefix="quad-sitl-") as tmp:  # the policy's vehicle file, if it needs one
             if args.node_only:
                 return sitl_node.fly(args, policy, policy_path, key, _draw)
-            from quadpilot.firmware_sim.cli import policy_vehicle_args
-            from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
+            from quadpilot.simulator import build_sim_parser, config_from_args
+            from quadpilot.simulator.cli import policy_vehicle_args
 
             try:
                 rest = [*rest, *policy_vehicle_args(args.vehicle, policy.info.vehicle, Path(tmp), warn=_warn)]
@@ -473,7 +473,7 @@ def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes
     logs = []
     try:
         listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
-        cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", listen]
+        cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", listen]
         cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed), "--task", task]
         cmd += ["--lockstep" if args.lockstep else "--realtime", f"--spin-us={args.spin_us}", *rest]
         if args.key is not None:

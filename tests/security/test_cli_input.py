@@ -58,7 +58,7 @@ PRELOAD = [
         "quadpilot.train." + m
         for m in ("ppo", "runs.checkpoint", "envs", "curriculum", "evaluate", "runs.runlog", "sac")
     ),
-    *("quadpilot.export.onnx_export", "quadpilot.export.c_export", "quadpilot.firmware_sim.sim", "quadpilot.viz"),
+    *("quadpilot.export.onnx_export", "quadpilot.export.c_export", "quadpilot.simulator", "quadpilot.viz"),
     *("quadpilot.runtime", "quadpilot.autopilot.node", "quadpilot.link.tlog", "quadpilot.core.mission"),
 ]
 
@@ -715,7 +715,7 @@ def test_a_second_run_in_a_locked_run_directory_is_refused_and_changes_nothing(t
 
 
 def _simulators_on(listen: str) -> list[int]:
-    """Pids of the simulator processes (python -m quadpilot.firmware_sim) told to listen on `listen`."""
+    """Pids of the simulator processes (python -m quadpilot.simulator) told to listen on `listen`."""
     found = []
     for p in Path("/proc").iterdir():
         if p.name.isdigit():
@@ -723,7 +723,7 @@ def _simulators_on(listen: str) -> list[int]:
                 args = (p / "cmdline").read_bytes().decode(errors="replace").split("\0")
             except OSError:
                 continue
-            if "quadpilot.firmware_sim" in args and listen in args:
+            if "quadpilot.simulator" in args and listen in args:
                 found.append(int(p.name))
     return found
 
@@ -774,7 +774,7 @@ def test_the_simulator_never_outlives_quad_sitl(tmp_path):
     parent = (
         "import sys, time\n"
         "from quadpilot.sitl import _Simulator\n"
-        f"sim = _Simulator([sys.executable, '-m', 'quadpilot.firmware_sim', '--sim-only', '--listen', '{waiting}'])\n"
+        f"sim = _Simulator([sys.executable, '-m', 'quadpilot.simulator', '--sim-only', '--listen', '{waiting}'])\n"
         "assert sim.wait_listening(60)[0]\n"
         "time.sleep(120)\n"
     )

@@ -89,7 +89,7 @@ def _msgid(raw: bytes) -> int:
 def fly(flags: tuple, seed: int, duration_s: float = 3.0) -> dict:
     """Fly one episode; the four digests of the module docstring."""
     record = Path(tempfile.mkdtemp(prefix="lockstep-identity-")) / "sim.json"
-    cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
+    cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
     proc, address = _start_simulator([*cmd, "--episodes", "1", "--seed", str(seed), "--json", str(record), *flags])
     assert proc is not None, address
     frames: list[tuple[str, bytes]] = []

@@ -10,8 +10,8 @@ import pytest
 
 import quadpilot.sitl as sitl
 from quadpilot.core.vehicle_file import VEHICLES_DIR, load_vehicle_file
-from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
 from quadpilot.runtime import load_policy
+from quadpilot.simulator import build_sim_parser, config_from_args
 
 pytest.importorskip("torch")
 pytestmark = pytest.mark.sitl

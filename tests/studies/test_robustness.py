@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from quadpilot.core.params import SEED_VEHICLE
-from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG, SimConfig
+from quadpilot.simulator import DEFAULT_WIND_DRAG, SimConfig
 from quadpilot.studies.robustness import (
     SCENARIOS,
     Cell,

@@ -120,7 +120,7 @@ def body_to_world(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
 def scalar_trig_agrees(samples: int = 256) -> bool:
     """math.sin, math.cos and math.floor give NumPy's bits on one-element float64 arrays at
     `samples` angles over ±4π and a few special ones. The scalar forms of one vehicle's step and
-    observation (`firmware_sim.single_step`, `runtime.observation_one`) compute only where this
+    observation (`simulator.single_step`, `runtime.observation_one`) compute only where this
     holds: `math` is the C library's, while `np.sin` may be NumPy's own SIMD code on some CPUs."""
     rng = np.random.default_rng(20240611)
     angles = np.concatenate([rng.uniform(-4 * math.pi, 4 * math.pi, samples), [0.0, -0.0, math.pi, -math.pi, 1e-300]])

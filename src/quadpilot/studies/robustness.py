@@ -18,7 +18,7 @@ Regenerate the tables of docs/robustness.md:
         --policy randomised=models/hover_dr/policy.pt --fallback --sitl --out docs/bench/robustness
 
 Wind acts as in the SITL simulator: through linear drag, F = drag·(wind − v), with quad-sitl's
-default drag coefficient when there is wind (`firmware_sim.sim.DEFAULT_WIND_DRAG`, 0.2 N·s/m).
+default drag coefficient when there is wind (`simulator.DEFAULT_WIND_DRAG`, 0.2 N·s/m).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from quadpilot.core.observation import build_observation
 from quadpilot.core.params import VehicleParams
 from quadpilot.core.randomization import RandomizationConfig
 from quadpilot.core.state import POS, YAW
-from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG
+from quadpilot.simulator import DEFAULT_WIND_DRAG
 from quadpilot.train.envs import EnvConfig, QuadBatch
 
 GRID_MASS = (0.85, 1.0, 1.15)

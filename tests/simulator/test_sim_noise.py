@@ -8,8 +8,8 @@ import pytest
 from test_sim import LEVEL, by_type, config, connect, finish, on_the_wire, read_step, send, serving
 
 from quadpilot.core.sensor_noise import SensorNoiseState, get_sensor_noise
-from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
 from quadpilot.link import wire
+from quadpilot.simulator import build_sim_parser, config_from_args
 
 STEPS = 30
 

@@ -1,7 +1,7 @@
 """The simulator's scalar arithmetic for its one vehicle gives the bits of the batched NumPy code it
 stands in for, so that a flight is the same flight, only faster:
 
-- the step of one drone (`firmware_sim.single_step.SingleStep`) against `core.dynamics.step` on a
+- the step of one drone (`simulator.single_step.SingleStep`) against `core.dynamics.step` on a
   batch of one, for every airframe the simulator can fly: quad-X presets, other rotor layouts and
   output orders, motor lag, idle speed, drag, an external (wind) force, motors off, commands at
   the edges of the clip, and states from level hover to tumbling;
@@ -19,9 +19,9 @@ import pytest
 from quadpilot.core import dynamics
 from quadpilot.core.params import CRAZYFLIE, PX4_SIH_QUADX, SEED_VEHICLE, ParamBatch, Rotor
 from quadpilot.core.vehicle_file import load_vehicle_file
-from quadpilot.firmware_sim import single_step
-from quadpilot.firmware_sim.plant import Plant
-from quadpilot.firmware_sim.single_step import SingleStep
+from quadpilot.simulator import single_step
+from quadpilot.simulator.plant import Plant
+from quadpilot.simulator.single_step import SingleStep
 
 HUMMINGBIRD = Path(__file__).parents[1] / "data" / "vehicles" / "rotorpy_hummingbird.toml"
 
@@ -140,7 +140,7 @@ def test_the_scalar_crash_check_decides_as_core_reward():
     below ground, tilt at 60°, the 5 m flight area to the last bit (where the two sums of squares
     may round apart, `crashed` itself decides), NaN."""
     from quadpilot.core.reward import RewardConfig, crashed
-    from quadpilot.firmware_sim.process import crashed_one
+    from quadpilot.simulator.process import crashed_one
 
     reward = RewardConfig()
     rng = np.random.default_rng(3)
@@ -163,7 +163,7 @@ def test_the_scalar_crash_check_decides_as_core_reward():
 
 def test_the_scalar_rotation_is_euler_to_rotmat_bit_for_bit():
     from quadpilot.core.frames import euler_to_rotmat
-    from quadpilot.firmware_sim.sensors import rotation
+    from quadpilot.simulator.sensors import rotation
 
     rng = np.random.default_rng(5)
     for _ in range(5000):
@@ -180,7 +180,7 @@ def test_the_scalar_rotation_is_euler_to_rotmat_bit_for_bit():
 def test_the_accelerometer_is_the_sensor_model(drag, landed):
     """Plant.specific_force_flu (a shortcut without drag or contact, a shared rotation otherwise)
     against sensors.specific_force_flu with everything computed afresh."""
-    from quadpilot.firmware_sim import sensors
+    from quadpilot.simulator import sensors
 
     vehicle = dataclasses.replace(SEED_VEHICLE, drag=drag)
     plant = Plant(vehicle, 0.01, wind=(1.0, -0.5, 0.2))

@@ -9,8 +9,8 @@ import numpy as np
 from quadpilot.core import dynamics
 from quadpilot.core.params import PX4_SIH_QUADX, ParamBatch
 from quadpilot.core.state import ATT, VEL, Z
-from quadpilot.firmware_sim import sensors
-from quadpilot.firmware_sim.plant import Plant
+from quadpilot.simulator import sensors
+from quadpilot.simulator.plant import Plant
 
 VEHICLE = dataclasses.replace(PX4_SIH_QUADX, c_dx=0.02, c_dy=0.03, c_dz=0.05, k_d=1e-4, k_z=2e-4, k_h=3e-3, k_flap=1e-5)
 WIND = (3.0, -2.0, 0.5)
@@ -66,7 +66,7 @@ def test_the_accelerometer_measures_the_drag_the_dynamics_applies():
 def test_wind_adds_no_assumed_linear_drag_to_a_vehicle_with_its_own_drag_law():
     """DEFAULT_WIND_DRAG stands in for a vehicle without any drag law; RotorPy's quadratic drag and
     rotor aerodynamics act on the wind themselves, so nothing is added to them."""
-    from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG, SimConfig
+    from quadpilot.simulator import DEFAULT_WIND_DRAG, SimConfig
 
     windy = dict(wind=(3.0, 0.0, 0.0))
     assert SimConfig(**windy).effective_drag == DEFAULT_WIND_DRAG  # the seed vehicle: no drag law

@@ -1,4 +1,4 @@
-"""`quad-sitl --sim-only` (and `python -m quadpilot.firmware_sim`): the simulator alone, from the
+"""`quad-sitl --sim-only` (and `python -m quadpilot.simulator`): the simulator alone, from the
 command line. Flags map one to one onto `SimConfig` fields; a bad flag is one line on stderr and exit
 code 2, a simulator that cannot run (e.g. its port taken) one line and exit code 1.
 """
@@ -221,7 +221,7 @@ def passed_on_flags() -> dict[str, dict]:
         default=(),
         metavar="KIND@T",
         help="inject sensor faults at a simulated time of every episode, e.g. gyro-spike@2s, pos-freeze@2s+0.5s, "
-        "baro-step@1s:5, nan@3s:gyro (kinds: " + ", ".join(KINDS) + "; see firmware_sim.faults)",
+        "baro-step@1s:5, nan@3s:gyro (kinds: " + ", ".join(KINDS) + "; see simulator.faults)",
     )
     return table
 

@@ -10,7 +10,7 @@ double arithmetic on Python floats and on float64 arrays rounds alike, and neith
 with an add. What could differ is the trigonometry (`math.sin` is the C library's, `np.sin` may be
 NumPy's own SIMD code on some CPUs): `core.frames.scalar_trig_agrees` checks the two on sample angles when the module
 is loaded, and where they differ `SingleStep.step` declines and the plant takes `core.dynamics.step`
-instead. tests/firmware_sim/test_single_step.py compares the two steps bit for bit over random
+instead. tests/simulator/test_scalar_paths.py compares the two steps bit for bit over random
 states, commands, airframes (quad-X, other layouts, motor lag, idle speed, drag) and external forces.
 
 The constants are derived with the same NumPy expressions as `core.dynamics`' (on the batch of
@@ -61,7 +61,7 @@ def _mixer_rows(layout, scales) -> tuple:
 def _clip(x: float, lo: float) -> float:
     """np.clip(x, lo, 1.0) for one float, bit for bit: NaN stays NaN, and a value equal to a bound
     keeps its own sign (−0.0 stays −0.0 at a bound of 0), as NumPy's clip does (checked against it
-    by tests/firmware_sim/test_single_step.py, commands at the edges included)."""
+    by tests/simulator/test_scalar_paths.py, commands at the edges included)."""
     y = lo if x < lo else x
     return 1.0 if y > 1.0 else y
 

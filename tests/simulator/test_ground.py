@@ -1,4 +1,4 @@
-"""The simulator's ground plane (`firmware_sim.plant`) and `--start landed|air`.
+"""The simulator's ground plane (`simulator.plant`) and `--start landed|air`.
 
 The ground is the plane z = 0 of the simulator's world (ENU); the vehicle touches it with its centre
 of mass. A vehicle on it stays there with its motors off, one dropped on it stops on it (never more
@@ -17,8 +17,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink import mavutil
 
-from quadpilot.firmware_sim.plant import GROUND_FRICTION, Plant, landed_state
-from quadpilot.firmware_sim.sim import (
+from quadpilot.link import wire
+from quadpilot.link.transport import new_codec
+from quadpilot.simulator import (
     SimConfig,
     Simulator,
     UsageError,
@@ -26,8 +27,7 @@ from quadpilot.firmware_sim.sim import (
     config_from_args,
     main_sim_only,
 )
-from quadpilot.link import wire
-from quadpilot.link.transport import new_codec
+from quadpilot.simulator.plant import GROUND_FRICTION, Plant, landed_state
 
 G = 9.81
 VEHICLE = SimConfig().vehicle_params  # the seed quadrotor, 0.665 kg, no motor lag

@@ -19,8 +19,9 @@ from quadpilot.core import dynamics
 from quadpilot.core.frames import euler_to_rotmat
 from quadpilot.core.params import ParamBatch
 from quadpilot.core.start import sample_start_states
-from quadpilot.firmware_sim import sensors
-from quadpilot.firmware_sim.sim import (
+from quadpilot.link import wire
+from quadpilot.link.transport import new_codec
+from quadpilot.simulator import (
     DEFAULT_WIND_DRAG,
     TIME_ORIGIN_US,
     Plant,
@@ -31,9 +32,8 @@ from quadpilot.firmware_sim.sim import (
     build_sim_parser,
     config_from_args,
     main_sim_only,
+    sensors,
 )
-from quadpilot.link import wire
-from quadpilot.link.transport import new_codec
 
 HOME = wire.Home()
 G = 9.81
@@ -513,7 +513,7 @@ def test_sim_only_cli_serves_and_reports(capsys):
 
 def test_gusts_are_a_gauss_markov_wind_with_the_asked_spread_and_time_constant():
     from quadpilot.core.params import get_preset
-    from quadpilot.firmware_sim.sim import Plant
+    from quadpilot.simulator import Plant
 
     vehicle = SimConfig(gust=1.5).vehicle_params
     assert vehicle.drag > 0  # gusts alone switch the default wind drag on

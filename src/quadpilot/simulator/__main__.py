@@ -1,4 +1,4 @@
-"""`python -m quadpilot.firmware_sim [--listen tcp:127.0.0.1:4560] ...`: the simulator alone
+"""`python -m quadpilot.simulator [--listen tcp:127.0.0.1:4560] ...`: the simulator alone
 (what `quad-sitl --sim-only` runs, and what quad-sitl starts as its simulator process)."""
 
 import sys

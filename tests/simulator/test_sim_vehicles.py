@@ -11,7 +11,7 @@ import pytest
 from test_sim import by_type, config, connect, finish, read_step, send, serving
 
 from quadpilot.core.params import PX4_SIH_QUADX, SEED_VEHICLE
-from quadpilot.firmware_sim.sim import Plant, SimConfig, main_sim_only
+from quadpilot.simulator import Plant, SimConfig, main_sim_only
 
 SIH_FILE = str(Path(__file__).parents[2] / "src/quadpilot/vehicles/px4_sih_quadx.toml")
 LEVEL = (0.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # high enough to fall for 1 s

@@ -1,4 +1,4 @@
-"""The simulator's flags that quad-sitl passes on are declared once (`firmware_sim.cli.passed_on_flags`):
+"""The simulator's flags that quad-sitl passes on are declared once (`simulator.cli.passed_on_flags`):
 both command lines show the same text for each, and what quad-sitl passes on is what it was given."""
 
 import argparse
@@ -6,7 +6,7 @@ import contextlib
 import io
 import re
 
-from quadpilot.firmware_sim.cli import build_sim_parser, passed_on_flags
+from quadpilot.simulator.cli import build_sim_parser, passed_on_flags
 from quadpilot.sitl import _sim_args, build_parser
 
 
