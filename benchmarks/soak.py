@@ -36,7 +36,8 @@ import numpy as np
 from link_faults import machine
 from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.sitl import SHIPPED_HOVER, _start_simulator
+from quadpilot.sitl import SHIPPED_HOVER
+from quadpilot.sitl.simulator_process import start_simulator
 
 RATE_HZ = 100
 
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     # SIGINT ignored, which a child inherits: it gets Python's own handler for the start instead
     before = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        proc, address = _start_simulator(cmd)
+        proc, address = start_simulator(cmd)
     finally:
         signal.signal(signal.SIGINT, before)
     if proc is None:

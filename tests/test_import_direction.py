@@ -1,4 +1,4 @@
-"""docs/architecture.md's import direction: runtime and simulator never pull in torch, gymnasium or the
+"""docs/architecture.md's import direction: runtime, simulator and sitl never pull in torch, gymnasium or the
 training side; `import quadpilot` alone stays light."""
 
 import subprocess
@@ -11,7 +11,10 @@ HEAVY = ("torch", "gymnasium", "stable_baselines3", "quadpilot.train", "quadpilo
 
 @pytest.mark.parametrize(
     "module",
-    ["quadpilot", "quadpilot.core", "quadpilot.link", "quadpilot.runtime", "quadpilot.simulator", "quadpilot.viz"],
+    [
+        *("quadpilot", "quadpilot.core", "quadpilot.link", "quadpilot.runtime", "quadpilot.simulator"),
+        *("quadpilot.sitl", "quadpilot.viz"),
+    ],
 )
 def test_light_packages_do_not_import_heavy_ones(module):
     code = f"import sys, {module}; print(sorted(m for m in {HEAVY!r} if m in sys.modules))"

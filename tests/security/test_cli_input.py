@@ -773,8 +773,9 @@ def test_the_simulator_never_outlives_quad_sitl(tmp_path):
     waiting = f"tcp:127.0.0.1:{_free_port()}"
     parent = (
         "import sys, time\n"
-        "from quadpilot.sitl import _Simulator\n"
-        f"sim = _Simulator([sys.executable, '-m', 'quadpilot.simulator', '--sim-only', '--listen', '{waiting}'])\n"
+        "from quadpilot.sitl.simulator_process import SimulatorProcess\n"
+        "sim = SimulatorProcess([sys.executable, '-m', 'quadpilot.simulator', '--sim-only', '--listen', "
+        f"'{waiting}'])\n"
         "assert sim.wait_listening(60)[0]\n"
         "time.sleep(120)\n"
     )

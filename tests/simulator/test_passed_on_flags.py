@@ -7,7 +7,8 @@ import io
 import re
 
 from quadpilot.simulator.cli import build_sim_parser, passed_on_flags
-from quadpilot.sitl import _sim_args, build_parser
+from quadpilot.sitl.cli import build_parser
+from quadpilot.sitl.options import sim_args
 
 
 def _help_of(parser: argparse.ArgumentParser) -> dict[str, str]:
@@ -35,8 +36,8 @@ def test_both_command_lines_show_the_same_text_for_every_passed_on_flag():
 
 def test_quad_sitl_passes_on_what_it_was_given_and_nothing_else():
     args = build_parser().parse_args(["--wind", "-0.9,0,0", "--imu-noise", "--mass-scale", "1.1"])
-    assert _sim_args(args) == ["--mass-scale=1.1", "--wind=-0.9,0,0", "--imu-noise"]
-    assert _sim_args(build_parser().parse_args([])) == []
+    assert sim_args(args) == ["--mass-scale=1.1", "--wind=-0.9,0,0", "--imu-noise"]
+    assert sim_args(build_parser().parse_args([])) == []
     # and the simulator's own parser reads them back to the same values
-    sim = build_sim_parser().parse_args(_sim_args(args))
+    sim = build_sim_parser().parse_args(sim_args(args))
     assert sim.mass_scale == 1.1 and sim.wind == (-0.9, 0.0, 0.0) and sim.imu_noise

@@ -22,7 +22,8 @@ from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.core.mission import judge
 from quadpilot.link.frames import Home
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.sitl import SHIPPED_HOVER, _start_simulator, main
+from quadpilot.sitl import SHIPPED_HOVER, main
+from quadpilot.sitl.simulator_process import start_simulator
 
 pytestmark = pytest.mark.sitl
 H = Home()
@@ -36,7 +37,7 @@ STEPS = 500
 def simulator(tmp_path):
     stats = tmp_path / "sim.json"
     cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
-    proc, address = _start_simulator([*cmd, "--episodes", "1", "--json", str(stats)])
+    proc, address = start_simulator([*cmd, "--episodes", "1", "--json", str(stats)])
     assert proc is not None, address
     yield proc, int(address.rsplit(":", 1)[1]), stats
     stop(proc)
@@ -126,7 +127,7 @@ def test_a_simulator_stalled_for_two_seconds_in_lockstep_is_waited_for(tmp_path,
     NodeConfig's default, and the flight failed.)"""
     proto = "tcp" if via.startswith("quad-sitl") else "udp"
     cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", f"{proto}:127.0.0.1:0"]
-    proc, address = _start_simulator([*cmd, "--episodes", "1", "--lockstep-timeout", "30"])
+    proc, address = start_simulator([*cmd, "--episodes", "1", "--lockstep-timeout", "30"])
     assert proc is not None, address
     port = int(address.rsplit(":", 1)[1])
     stalled = threading.Event()

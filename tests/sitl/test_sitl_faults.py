@@ -20,7 +20,8 @@ from quadpilot.autopilot.flight_log import episode_summary
 from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.simulator import SimConfig, Simulator
-from quadpilot.sitl import SHIPPED_HOVER, _start_simulator, main
+from quadpilot.sitl import SHIPPED_HOVER, main
+from quadpilot.sitl.simulator_process import start_simulator
 
 pytestmark = pytest.mark.sitl
 KEY = bytes(range(32))
@@ -38,7 +39,7 @@ def assert_every_command_valid(log=None, sim_dropped=None):
 def sim_process(*flags, tmp_path):
     stats = tmp_path / "sim.json"
     cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--json", str(stats), *flags]
-    proc, address = _start_simulator(cmd)
+    proc, address = start_simulator(cmd)
     assert proc is not None, address
     return proc, address, stats
 

@@ -34,7 +34,7 @@ hand-back is counted in `events` (`fallback_engaged`, `handed_back`, `fallback_l
 queued in `transitions` for whoever logs them (`autopilot.node`). `source` says who flew the last
 step: "policy", "fallback", or "recovering" (the fallback, after bad input, while the hand-back
 time runs inside the recovery envelope: the price of the hand-back rule, not a failure of the
-policy; `sitl_node` does not count those steps against the flight).
+policy; `sitl.node_only` does not count those steps against the flight).
 """
 
 from __future__ import annotations

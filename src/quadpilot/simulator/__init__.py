@@ -10,7 +10,8 @@ connection. This module gathers its public names; each part has its module:
 - `protocol`: the messages each step sends, the one receive point, the check of actuator commands;
 - `process`: `Simulator`, the server loop (lockstep or realtime, the ESC timeout);
 - `records`: `EpisodeRecord` and `SimStats`, what a run reports;
-- `cli`: `quad-sitl --sim-only` (`main_sim_only`).
+- `cli`: its command line (`main_sim_only`: `python -m quadpilot.simulator`, which `quad-sitl --sim-only`
+  runs), where the flags quad-sitl passes on to it are declared once (`passed_on_flags`).
 
 Every in-range command sequence keeps the simulation finite and every message encodable, however
 long it runs: the plant stays in its model's domain (`Plant`), the barometer in its atmosphere's

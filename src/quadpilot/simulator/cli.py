@@ -8,21 +8,18 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import re
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, float_in
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
-from quadpilot.core.params import PRESETS, VehicleParams
+from quadpilot.core.params import PRESETS
 from quadpilot.core.vehicle_file import (
     UnknownVehicleError,
     VehicleFileError,
     is_vehicle_path,
     resolve_vehicle,
-    vehicle_to_toml,
 )
 from quadpilot.link.spin import MAX_SPIN_US
 from quadpilot.link.transport import SigningError, SimulatorError, parse_address, read_key
@@ -38,30 +35,6 @@ def vehicle_label(cfg: SimConfig) -> str:
     if cfg.airframe is not None:
         return f"{cfg.airframe.name} ({cfg.airframe.mass:g} kg) from {cfg.airframe_source}"
     return cfg.vehicle
-
-
-def policy_vehicle_args(
-    requested: str | None, policy_vehicle: VehicleParams, tmp: Path, warn: Callable[[str], None]
-) -> list[str]:
-    """The simulator's --vehicle for flying a policy: the policy's own vehicle unless `requested`
-    (the user's --vehicle, already passed on and checked) names another; then `warn` gets one line
-    when its parameters differ from the policy's. The policy's vehicle is its preset's name when it
-    is that preset exactly, else a vehicle file written into `tmp`."""
-    if requested is not None:
-        flown = resolve_vehicle(requested)
-        if dataclasses.replace(flown, name="") != dataclasses.replace(policy_vehicle, name=""):
-            warn(
-                f"--vehicle {requested} ({flown.name}, {flown.mass:g} kg) differs from the vehicle the policy "
-                f"was trained on ({policy_vehicle.name}, {policy_vehicle.mass:g} kg)"
-            )
-        return []
-    if PRESETS.get(policy_vehicle.name) == policy_vehicle:
-        return [f"--vehicle={policy_vehicle.name}"]
-    # the name only labels the vehicle (and picks its sensor models): one a file can hold
-    name = re.sub(r"[^A-Za-z0-9_.-]", "_", policy_vehicle.name)[:64] or "policy_vehicle"
-    path = tmp / "policy_vehicle.toml"
-    path.write_text(vehicle_to_toml(dataclasses.replace(policy_vehicle, name=name)), encoding="utf-8")
-    return [f"--vehicle={path}"]
 
 
 def _wind(text: str) -> tuple[float, float, float]:
@@ -226,34 +199,6 @@ def passed_on_flags() -> dict[str, dict]:
     return table
 
 
-def add_passed_on_flags(p, passed_on: bool = False) -> None:
-    """Add `passed_on_flags` to a parser (or group). passed_on: quad-sitl's copy, with the same help
-    and metavar but no default and no type, so that only the flags given are passed on, as given
-    (quad-sitl checks them first with the simulator's own parser)."""
-    for flag, kw in passed_on_flags().items():
-        kw = dict(kw)
-        if passed_on and kw.get("action") != "store_true":
-            for k in ("type", "choices"):
-                kw.pop(k, None)
-            kw["default"] = None
-        p.add_argument(flag, **kw)
-
-
-def passed_on_tokens(args) -> list[str]:
-    """The passed-on flags given in `args` (a namespace of a parser with `add_passed_on_flags(...,
-    passed_on=True)`), as simulator arguments: FLAG=VALUE in one token (a value like -0.9,0,0 is not
-    taken for an option), a switch alone."""
-    out = []
-    for flag, kw in passed_on_flags().items():
-        value = getattr(args, flag[2:].replace("-", "_"))
-        if kw.get("action") == "store_true":
-            if value:
-                out.append(flag)
-        elif value is not None:
-            out.append(f"{flag}={value}")
-    return out
-
-
 def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentParser:
     d = SimConfig()
     p = Parser(prog=prog, description="Run only the simulator: core dynamics served over MAVLink like a PX4 simulator.")
@@ -266,7 +211,8 @@ def build_sim_parser(prog: str = "quad-sitl --sim-only") -> argparse.ArgumentPar
         "--lockstep", dest="lockstep", action="store_true", default=True, help="one step per actuator message (default)"
     )
     mode.add_argument("--realtime", dest="lockstep", action="store_false", help="one step per dt of wall-clock time")
-    add_passed_on_flags(p)
+    for flag, kw in passed_on_flags().items():  # quad-sitl's copy: `sitl.options.add_passed_on_flags`
+        p.add_argument(flag, **kw)
     p.add_argument("--task", choices=TASKS, default=d.task, help="where episodes start (core.mission; default hover)")
     p.add_argument("--gust-tau", type=_positive, default=d.gust_tau_s, metavar="S", help="gust correlation time, s")
     p.add_argument("--init-rate", type=_non_negative, default=d.init_rate, metavar="RAD/S", help="start body rates ±")

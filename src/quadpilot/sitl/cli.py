@@ -9,7 +9,7 @@ Each side also runs alone: `quad-sitl --sim-only [--listen tcp:127.0.0.1:4560]` 
 simulator until stopped; `quad-sitl POLICY.onnx --node-only --connect tcp:HOST:PORT [--home
 LAT,LON,ALT] [--target E,N,U] [--duration S] [--trace OUT.csv] [--json OUT]` flies one flight against
 any simulator that speaks PX4's Simulator MAVLink API and listens there (ours, RotorPy's
-PX4Multirotor, ...): see `quadpilot.sitl_node`.
+PX4Multirotor, ...): see `quadpilot.sitl.node_only`.
 
 `--start landed --realtime [--gcs udp:HOST:PORT]`: the vehicle starts on the ground, disarmed, and the
 node answers the ground station there as a PX4 vehicle (`autopilot.commander`); one episode, which ends
@@ -28,36 +28,26 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
-import os
 import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import threading
 from pathlib import Path
 
-import numpy as np
-
-import quadpilot.sitl_node as sitl_node
-from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, input_path_problem, os_error_line
+from quadpilot.console import Parser, UsageError, check_output_path, input_path_problem
 from quadpilot.console import int_in as _int_in
-from quadpilot.simulator.cli import add_passed_on_flags, passed_on_tokens
+from quadpilot.sitl import node_only
+from quadpilot.sitl import options as sitl_options
+from quadpilot.sitl.flight import fly_with_simulator
+from quadpilot.sitl.options import add_passed_on_flags, policy_vehicle_args, sim_args
 
 # The shipped models are package data (`runtime.shipped`): in a source checkout this is models/.
-SHIPPED_HOVER = (Path(__file__).parent / "models").resolve() / "hover" / "policy.onnx"
+SHIPPED_HOVER = (Path(__file__).parents[1] / "models").resolve() / "hover" / "policy.onnx"
 MAX_EPISODES = 100_000
 MAX_DURATION_S = 3600.0  # an hour of 100 Hz flight is 360 000 logged steps per episode
 # A flag value that starts with "-" and a digit is a value (--wind -0.9,0,0), not an unknown
 # option; argparse's own pattern admits only plain numbers like -1 or -.5.
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _seconds(text: str) -> float:
@@ -103,7 +93,7 @@ def _fraction(text: str) -> float:
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="quad-sitl", description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument(
-        "policy", nargs="?", type=Path, help=sitl_node.POLICY_HELP + " Default: the shipped hover model (--model)"
+        "policy", nargs="?", type=Path, help=sitl_options.POLICY_HELP + " Default: the shipped hover model (--model)"
     )
     p.add_argument("--model", metavar="NAME", help="Fly the shipped model NAME (--list-models). Default: hover")
     p.add_argument("--list-models", action="store_true", help="List the shipped models, what each is for, and exit.")
@@ -121,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--maneuver",
-        type=sitl_node.maneuver_flag,
+        type=sitl_options.maneuver_flag,
         default=None,
         metavar="step[:M]|figure8:V",
         help="Fly a maneuver from rest at home instead of the task's targets (core.maneuver): a step of M metres "
@@ -177,110 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="MAVLink 2 signing key (32 raw bytes or 64 hex digits) for the simulator link, both sides.",
     )
-    sitl_node.add_arguments(p)
+    sitl_options.add_arguments(p)
     sim = p.add_argument_group("simulator (passed on to the simulator process; see quad-sitl --sim-only --help)")
-    add_passed_on_flags(sim, passed_on=True)  # declared once, in the simulator's command line
+    add_passed_on_flags(sim)  # declared once, in the simulator's command line (simulator.cli)
     return p
-
-
-def _sim_args(args: argparse.Namespace) -> list[str]:
-    rest = passed_on_tokens(args)
-    if args.maneuver is not None and not args.node_only:  # our simulator: its start; another's is its own
-        given = {t.split("=", 1)[0] for t in rest}
-        rest += [f"{flag}={v}" for flag, v in sitl_node.MANEUVER_START.items() if flag not in given]
-    return rest
-
-
-def _die_with_parent():
-    """A preexec_fn (Linux) that has the kernel SIGKILL the simulator when quad-sitl dies, however
-    it dies (prctl(2) PR_SET_PDEATHSIG): the second net under `_Simulator.stop` in a finally, for a
-    kill -9 that runs no Python. None elsewhere."""
-    if not sys.platform.startswith("linux"):
-        return None
-    import ctypes
-
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up here: the child only calls it
-    except (OSError, AttributeError):
-        return None
-    parent = os.getpid()
-    pr_set_pdeathsig = 1  # <linux/prctl.h>
-
-    def child() -> None:
-        prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0)
-        if os.getppid() != parent:  # the parent died before the prctl took effect
-            os.kill(os.getpid(), signal.SIGKILL)
-
-    return child
-
-
-class _Simulator:
-    """The simulator process (`python -m quadpilot.simulator`), started so that it dies with
-    this one: `stop()` in a finally on every exit path, and PR_SET_PDEATHSIG for the paths that run
-    no Python (kill -9)."""
-
-    def __init__(self, cmd: list[str]) -> None:
-        self.proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_die_with_parent()
-        )
-        self._drains: list = []
-
-    def wait_listening(self, timeout_s: float) -> tuple[bool, str]:
-        """(True, address it listens on) once it says so; (False, why not) if it exits first (e.g.
-        its port is taken) or stays silent for `timeout_s`."""
-        import select
-        import threading
-
-        proc = self.proc
-        ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
-        line = proc.stdout.readline() if ready else ""
-        if "listening on" not in line:
-            if proc.poll() is None:
-                proc.kill()
-            proc.wait()
-            err = proc.stderr.read().strip()  # it has exited: its last words are all there
-            self._close_pipes()
-            last = err.splitlines()[-1] if err else f"no answer within {timeout_s:g} s"
-            return False, last.removeprefix("quad-sitl: error: ")
-
-        def drain(stream):  # per-episode lines: read them so the pipe never fills and blocks it
-            for _ in stream:
-                pass
-
-        for stream in (proc.stdout, proc.stderr):
-            t = threading.Thread(target=drain, args=(stream,), daemon=True)
-            t.start()
-            self._drains.append(t)
-        return True, line.split("listening on ", 1)[1].split()[0]
-
-    def stop(self) -> None:
-        """Terminate it (SIGTERM, then SIGKILL after 5 s) and wait for it; idempotent."""
-        proc = self.proc
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        for t in self._drains:
-            t.join(timeout=1)
-        if not self._drains or not any(t.is_alive() for t in self._drains):
-            self._close_pipes()
-
-    def _close_pipes(self) -> None:
-        for stream in (self.proc.stdout, self.proc.stderr):
-            if stream is not None and not stream.closed:
-                stream.close()
-
-
-def _start_simulator(cmd: list[str], timeout_s: float = 30.0):
-    """Start the simulator process and wait until it listens: (process, address it listens on),
-    or (None, why not) if it exits first (e.g. its port is taken) or stays silent for `timeout_s`.
-    It dies with this process (see `_Simulator`)."""
-    sim = _Simulator(cmd)
-    ok, what = sim.wait_listening(timeout_s)
-    return (sim.proc, what) if ok else (None, what)
 
 
 class _Terminated(BaseException):
@@ -295,11 +185,6 @@ def _on_sigterm(signum, frame):
 def _bad_flag(message: str) -> int:
     print(f"quad-sitl: error: {message}", file=sys.stderr)
     return 2
-
-
-def _bad_run(message: str) -> int:
-    print(f"quad-sitl: {message}", file=sys.stderr)
-    return 1
 
 
 def _warn(message: str) -> None:
@@ -330,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(listing()))
         return 0
     # every flag is checked here, before anything starts: nothing below refuses a flag
-    rest = _sim_args(args)
+    rest = sim_args(args)
     if rest:  # the simulator's own flags (--mass-scale, --wind, --imu-noise, ...): checked here, passed on
         from quadpilot.core.vehicle_file import VehicleFileError
         from quadpilot.simulator import build_sim_parser, config_from_args
@@ -347,11 +232,11 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_flag("--node-only needs --connect tcp:HOST:PORT")
     if args.connect and not args.node_only:
         return _bad_flag("--connect is for --node-only; without it quad-sitl starts its own simulator (--listen)")
-    if (why := sitl_node.misused(args)) is not None:
+    if (why := sitl_options.misused(args)) is not None:
         return _bad_flag(why)
     from quadpilot.console import quick  # QUADPILOT_DOCS_QUICK: one episode (console.docs_quick)
 
-    args.episodes = quick(args.episodes or (1 if args.node_only or sitl_node.commanded(args) else 10), 1)
+    args.episodes = quick(args.episodes or (1 if args.node_only or sitl_options.commanded(args) else 10), 1)
     if args.policy is None:  # the shipped model --model names (hover by default), from the package's own data
         from quadpilot.runtime.shipped import shipped_policy
 
@@ -362,8 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     elif args.model is not None:
         return _bad_flag(f"give a policy file or --model, not both ({args.policy} and --model {args.model})")
     policy_path = args.policy
-    named = str(policy_path).startswith(sitl_node.RAPTOR_NAME)  # a policy the runtime knows by name (runtime.raptor)
-    for path, what in ((None if named else policy_path, sitl_node.POLICY_FILE), (args.key, "a signing key file")):
+    named = str(policy_path).startswith(sitl_options.RAPTOR_NAME)  # a policy the runtime knows by name (runtime.raptor)
+    for path, what in ((None if named else policy_path, sitl_options.POLICY_FILE), (args.key, "a signing key file")):
         if path is not None and (why := input_path_problem(path, what)) is not None:
             return _bad_flag(why)
     outputs = {"--json": args.json, "--plot": args.plot, "--video": args.video, "--tlog": args.tlog}
@@ -403,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
         return _bad_flag(f"--vehicle with --node-only maps a contract policy's outputs; {policy_path} has its own")
     task = args.task or policy.info.task
     if args.maneuver is not None:
-        if (why := sitl_node.maneuver_misused(args, task, policy, policy_path)) is not None:
+        if (why := sitl_options.maneuver_misused(args, task, policy, policy_path)) is not None:
             return _bad_flag(why)
         args.maneuver = dataclasses.replace(args.maneuver, dt=policy.info.control_period_s)
     if args.node_only and (task == "circle" or policy.info.layout.tracks):
@@ -430,9 +315,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with tempfile.TemporaryDirectory(prefix="quad-sitl-") as tmp:  # the policy's vehicle file, if it needs one
             if args.node_only:
-                return sitl_node.fly(args, policy, policy_path, key, _draw)
+                return node_only.fly(args, policy, policy_path, key)
             from quadpilot.simulator import build_sim_parser, config_from_args
-            from quadpilot.simulator.cli import policy_vehicle_args
 
             try:
                 rest = [*rest, *policy_vehicle_args(args.vehicle, policy.info.vehicle, Path(tmp), warn=_warn)]
@@ -442,158 +326,13 @@ def main(argv: list[str] | None = None) -> int:
                 config_from_args(build_sim_parser("quad-sitl").parse_args(rest))
             except UsageError as e:
                 return _bad_flag(str(e))
-            return _fly(args, rest, policy, policy_path, task, key)
+            return fly_with_simulator(args, rest, policy, policy_path, task, key)
     except _Terminated:
         print("quad-sitl: terminated", file=sys.stderr)
         return 128 + signal.SIGTERM
-    except KeyboardInterrupt:  # before the first episode (during one, _fly summarises what was flown)
+    except KeyboardInterrupt:  # before the first episode (during one, fly_with_simulator summarises what was flown)
         print("\nquad-sitl: interrupted", file=sys.stderr)
         return 130
     finally:
         if old is not None:
             signal.signal(signal.SIGTERM, old)
-
-
-def _fly(args, rest: list[str], policy, policy_path: Path, task: str, key: bytes | None) -> int:
-    """Start the simulator, fly, summarise. The simulator is stopped on every way out of here (return,
-    exception, Ctrl-C, SIGTERM via `_Terminated`)."""
-    from quadpilot.autopilot.node import Node, NodeConfig, NodeError
-    from quadpilot.core.mission import default_duration_s, plan_episode
-    from quadpilot.runtime import SafetyMonitor
-
-    commanded = sitl_node.commanded(args)
-    if commanded and args.lockstep:
-        print(sitl_node.LOCKSTEP_COMMANDED_WARNING, file=sys.stderr)
-    maneuver = args.maneuver
-    duration = args.duration or (
-        sitl_node.COMMANDED_DURATION_S if commanded else maneuver.duration_s if maneuver else default_duration_s(task)
-    )
-    monitor = SafetyMonitor(policy)
-    sim = tlog = proxy = None
-    logs = []
-    try:
-        listen = args.listen or f"tcp:127.0.0.1:{_free_port()}"
-        cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", listen]
-        cmd += ["--episodes", str(args.episodes), "--seed", str(args.seed), "--task", task]
-        cmd += ["--lockstep" if args.lockstep else "--realtime", f"--spin-us={args.spin_us}", *rest]
-        if args.key is not None:
-            cmd += ["--key", str(args.key)]
-        sim = _Simulator(cmd)
-        ok, address = sim.wait_listening(30.0)
-        if not ok:
-            print(f"quad-sitl: error: the simulator did not start: {address}", file=sys.stderr)
-            return 1
-        gcs = None if args.gcs.lower() == "none" else args.gcs
-        proxy, address = sitl_node.start_impair(args, address)  # --link-impair: the node talks through it
-        node = Node(
-            NodeConfig(
-                connect=address,
-                duration_s=duration,
-                lockstep=args.lockstep,
-                gcs=gcs,
-                signing_key=key,
-                command=commanded,
-                start="landed" if commanded else "air",
-                spin_s=args.spin_us / 1e6,
-                state_loss=args.state_loss,
-            )
-        )
-        if args.tlog is not None:
-            from quadpilot.link.tlog import TlogWriter
-
-            tlog = TlogWriter(args.tlog)
-        try:
-            for k in range(args.episodes):
-                mission = plan_episode(task, args.seed, k, policy.info.control_period_s)
-                targets = None if commanded else (maneuver or mission).target_at  # commanded: the ground station's
-                logs.append(node.fly(monitor, tap=None if tlog is None else tlog.tap, targets=targets))
-        except NodeError as e:
-            print(f"quad-sitl: error: {e}", file=sys.stderr)
-            return 1
-        except KeyboardInterrupt:
-            print("quad-sitl: interrupted; summary of the episodes flown so far", file=sys.stderr)
-    except OSError as e:  # an output that could be written a moment ago cannot now (disk full, removed)
-        print(f"quad-sitl: error: {e.filename + ': ' if e.filename else ''}{e.strerror or e}", file=sys.stderr)
-        return 1
-    finally:
-        if tlog is not None:
-            tlog.close()
-        if proxy is not None:
-            proxy.stop()
-        if sim is not None:
-            sim.stop()
-    refused = next((log.failsafe for log in logs if (log.failsafe or "").startswith("refusing to arm")), None)
-    if refused is not None:  # nothing was flown: one line, not a summary of nothing
-        print(f"quad-sitl: {refused} (HIL_SENSOR arrives, HIL_STATE_QUATERNION does not)", file=sys.stderr)
-        return 1
-    summary = sitl_node.summarise(logs, policy.info.control_period_s, task)
-    summary["task"] = task
-    if maneuver is not None:
-        summary.update(sitl_node.maneuver_summary(maneuver, logs, policy.info.control_period_s))
-    summary["policy"] = str(policy_path)
-    summary["backend"] = args.backend
-    summary["monitor_events"] = dict(monitor.events)
-    if proxy is not None:
-        summary["link_impair"] = proxy.summary()
-    if commanded:
-        summary["commanded"] = sitl_node.commanded_summary(logs)
-    sitl_node.print_summary(summary, policy_path)
-    if maneuver is not None:
-        from quadpilot.core.maneuver import summary_line
-
-        print(summary_line(summary))
-    try:
-        if args.json:
-            atomic_write(args.json, lambda f: f.write((json.dumps(summary, indent=2) + "\n").encode()))
-    except OSError as e:
-        print(f"quad-sitl: error: {args.json}: {e.strerror or e}", file=sys.stderr)
-        return 1
-    if tlog is not None:
-        print(f"  MAVLink log             {args.tlog} ({tlog.messages:,} messages; read it with mavlogdump.py)")
-    code = _draw(args, logs, policy.info.control_period_s)
-    rate = summary["success_rate"]
-    if code == 0 and args.min_success > 0 and not rate >= args.min_success:  # NaN (nothing flown) fails too
-        flown = f"{rate:.0%}" if math.isfinite(rate) else "nothing"
-        return _bad_run(
-            f"success rate {flown} of {summary['episodes']} episodes is below --min-success {args.min_success:g}"
-        )
-    return code
-
-
-def _traces(logs):
-    from quadpilot.viz import FlightTrace
-
-    return [
-        FlightTrace.from_episode_log(log, np.asarray(log.targets), label=f"episode {i}")
-        for i, log in enumerate(logs)
-        if log.states
-    ]
-
-
-def _draw(args, logs, period: float) -> int:
-    if args.plot is None and args.video is None:
-        return 0
-    from quadpilot.viz import VizUnavailable, plot_flight, render_flight_video
-
-    traces = _traces(logs)
-    if not traces:
-        print("quad-sitl: nothing flown, nothing to draw", file=sys.stderr)
-        return 1
-    try:
-        if args.plot is not None:
-            plot_flight(traces, args.plot, title=f"quad-sitl: {args.policy}")
-            print(f"  plot                    {args.plot}")
-        if args.video is not None:
-            render_flight_video(traces[0], args.video)
-            print(f"  video                   {args.video}")
-    except VizUnavailable as e:
-        print(f"quad-sitl: error: {e}", file=sys.stderr)
-        return 1
-    except OSError as e:  # the picture could not be written (the disk filled since the check)
-        print(f"quad-sitl: error: {os_error_line(e)}", file=sys.stderr)
-        return 1
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
