@@ -9,8 +9,9 @@ import re
 
 import pytest
 
-from quadpilot.core.params import PRESETS, Rotor, VehicleParams, quad_x
+from quadpilot.core.params import Rotor, VehicleParams, quad_x
 from quadpilot.core.vehicle_file import (
+    PRESETS,
     VEHICLES_DIR,
     UnknownVehicleError,
     VehicleFileError,
@@ -240,8 +241,7 @@ def test_rotorpys_parasitic_drag_reads_as_it_is_written():
 
 
 def test_differences_name_each_parameter_with_its_unit_and_every_number_has_one():
-    from quadpilot.core.params import get_preset
-    from quadpilot.core.vehicle_file import UNITS, differences
+    from quadpilot.core.vehicle_file import UNITS, differences, get_preset
 
     numbers = {f.name for f in dataclasses.fields(VehicleParams)} - {"name", "rotors"}
     assert set(UNITS) == numbers

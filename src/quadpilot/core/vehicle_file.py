@@ -407,3 +407,22 @@ def differences(a: VehicleParams, b: VehicleParams) -> list[str]:
             ta, tb = repr(va), repr(vb)
         out.append(f"{f.name} {ta} vs {tb} {UNITS[f.name]}")
     return out
+
+
+def _shipped_presets() -> dict[str, VehicleParams]:
+    names = sorted(shipped_names(), key=lambda n: n != "seed")  # the default first, then by name
+    return {n: load_vehicle_file(VEHICLES_DIR / f"{n}.toml") for n in names}
+
+
+PRESETS: dict[str, VehicleParams] = _shipped_presets()
+"""The presets: the shipped vehicle files by name, read once. The files are the one definition of
+each preset's numbers, each with its unit and source."""
+SEED_VEHICLE, CRAZYFLIE, PX4_SIH_QUADX = PRESETS["seed"], PRESETS["crazyflie"], PRESETS["px4_sih_quadx"]
+
+
+def get_preset(name: str) -> VehicleParams:
+    """The preset called `name`; a clear error names the known ones."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(f"unknown vehicle preset {name!r}; known presets: {sorted(PRESETS)}") from None

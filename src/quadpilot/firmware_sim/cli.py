@@ -16,8 +16,9 @@ from pathlib import Path
 from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, float_in
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
-from quadpilot.core.params import PRESETS, VehicleParams
+from quadpilot.core.params import VehicleParams
 from quadpilot.core.vehicle_file import (
+    PRESETS,
     UnknownVehicleError,
     VehicleFileError,
     is_vehicle_path,

@@ -14,9 +14,10 @@ import numpy as np
 
 from quadpilot.core import dynamics
 from quadpilot.core.mission import TASKS, Mission, plan_episode
-from quadpilot.core.params import VehicleParams, get_preset
+from quadpilot.core.params import VehicleParams
 from quadpilot.core.sensor_noise import SENSOR_NOISE_PRESETS, SensorNoise, get_sensor_noise
 from quadpilot.core.start import sample_start_states
+from quadpilot.core.vehicle_file import get_preset
 from quadpilot.link import wire
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, check_spin
 from quadpilot.link.transport import Address, parse_address
@@ -45,7 +46,7 @@ class SimConfig:
     """Where to listen: tcp:HOST:PORT (PX4's simulators use TCP 4560) or udp:HOST:PORT. Port 0
     picks a free port (see `Simulator.address`). Loopback by default."""
     vehicle: str = "seed"
-    """Airframe preset name ("seed", "crazyflie", "px4_sih_quadx"), see `core.params.get_preset`."""
+    """Airframe preset name ("seed", "crazyflie", "px4_sih_quadx"), see `core.vehicle_file.get_preset`."""
     mass_scale: float = 1.0
     """Multiplies the preset's mass (the controller still believes the nominal one)."""
     inertia_scale: float = 1.0

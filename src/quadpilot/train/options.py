@@ -117,7 +117,7 @@ def make_config(algo, explicit: dict, preset: str | None):
 
 
 def resolve_vehicle(args) -> None:
-    """--vehicle NAME|FILE.toml: a shipped name stays a name (`core.params.get_preset`, equal to its
+    """--vehicle NAME|FILE.toml: a shipped name stays a name (`core.vehicle_file.get_preset`, equal to its
     file), a file becomes its VehicleParams. UnknownVehicleError (exit 2) or VehicleFileError (exit 1)."""
     from quadpilot.core.vehicle_file import is_vehicle_path, resolve_vehicle
 
@@ -130,7 +130,8 @@ def resolve_vehicle(args) -> None:
 
 def _vehicle(args):
     """The VehicleParams --vehicle names (seed without it)."""
-    from quadpilot.core.params import VehicleParams, get_preset
+    from quadpilot.core.params import VehicleParams
+    from quadpilot.core.vehicle_file import get_preset
 
     v = args.vehicle or "seed"
     return v if isinstance(v, VehicleParams) else get_preset(v)
