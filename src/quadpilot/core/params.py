@@ -208,6 +208,13 @@ class VehicleParams:
                 v = float(v)
             except OverflowError:  # an integer beyond the float range
                 v = math.inf
+            if f.name == "motor_tau":
+                try:
+                    v = checked_motor_tau(v)
+                except VehicleParamsError as e:
+                    raise VehicleParamsError(f.name, f"vehicle {label}: {e}") from None
+                object.__setattr__(self, f.name, v)
+                continue
             bound, relation = _VEHICLE_LIMITS[f.name]
             if not (math.isfinite(v) and (v > bound if relation == "> 0" else v >= bound)):
                 raise VehicleParamsError(
@@ -336,6 +343,19 @@ class VehicleParams:
         return replace(self, **new)
 
 
+def checked_motor_tau(value) -> float:
+    """The motor time constant `motor_tau` (s) as a float: a finite number ≥ 0, 0 meaning no lag;
+    VehicleParamsError naming it otherwise. The one check of it: a VehicleParams, a vehicle file's
+    `motor_tau`, the --motor-tau of quad-train and of the simulator, and a SimConfig call it."""
+    try:
+        v = float(value)
+    except OverflowError:  # an integer beyond the float range
+        v = math.inf
+    if not (math.isfinite(v) and v >= 0):
+        raise VehicleParamsError("motor_tau", f"motor_tau = {v!r}: expected a finite number >= 0")
+    return v
+
+
 _ARM_RTOL = 1e-9  # arm against the rotors' mean distance: equal to the digits a file or JSON carries
 
 
@@ -370,7 +390,8 @@ def _rotor_list(rotors, label: str) -> list[Rotor]:
 
 _VEHICLE_LIMITS = {
     # field: (bound, relation). Masses, lengths, inertias, coefficients and speeds are physical
-    # magnitudes; a zero time constant, drag coefficient or idle speed means "none" (see the field docs).
+    # magnitudes; a zero drag coefficient or idle speed means "none" (see the field docs); the motor
+    # time constant has its own check, `checked_motor_tau`.
     "mass": (0.0, "> 0"),
     "arm": (0.0, "> 0"),
     "ixx": (0.0, "> 0"),
@@ -379,7 +400,6 @@ _VEHICLE_LIMITS = {
     "k_f": (0.0, "> 0"),
     "k_m": (0.0, "> 0"),
     "omega_max": (0.0, "> 0"),
-    "motor_tau": (0.0, ">= 0"),
     "drag": (0.0, ">= 0"),
     "gravity": (0.0, "> 0"),
     "omega_min": (0.0, ">= 0"),

@@ -71,7 +71,7 @@ try:  # stdlib from Python 3.11; the `tomli` backport (same API) on 3.10
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-from .params import GRAVITY, NUM_MOTORS, Rotor, VehicleParams, VehicleParamsError
+from .params import GRAVITY, NUM_MOTORS, Rotor, VehicleParams, VehicleParamsError, checked_motor_tau
 
 VEHICLES_DIR = Path(__file__).resolve().parent.parent / "vehicles"
 """The shipped vehicle files (package data, `quadpilot/vehicles/*.toml`)."""
@@ -188,7 +188,7 @@ def _from_table(doc: dict, path) -> VehicleParams:
     k_thrust, k_torque = number("k_thrust", "> 0"), number("k_torque", "> 0")
     omega_max = number("omega_max", "> 0")
     omega_min = number("omega_min", ">= 0", 0.0)
-    motor_tau = number("motor_tau", ">= 0", 0.0)
+    motor_tau = _motor_tau(doc.get("motor_tau", 0.0), path)
     drag = _drag(doc.get("drag", 0.0), path)
     c_dx, c_dy, c_dz = _drag_quadratic(doc.get("drag_quadratic", [0.0, 0.0, 0.0]), path)
     aero = {k: number(k, ">= 0", 0.0) for k in _ROTOR_AERO}
@@ -224,13 +224,24 @@ def _from_table(doc: dict, path) -> VehicleParams:
         raise VehicleFileError(path, _FIELD_KEY.get(e.field, e.field), reason.strip()) from None
 
 
-def _number(v, path, key: str, relation: str) -> float:
+def _float(v, path, key: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise VehicleFileError(path, key, f"expected a number (float or integer), found {_type(v)}")
     try:
-        f = float(v)
+        return float(v)
     except OverflowError:  # a TOML integer beyond the float range
-        f = math.inf
+        return math.inf
+
+
+def _motor_tau(v, path) -> float:
+    try:
+        return checked_motor_tau(_float(v, path, "motor_tau"))
+    except VehicleParamsError:
+        raise VehicleFileError(path, "motor_tau", f"= {_short(v)}: expected a finite number >= 0") from None
+
+
+def _number(v, path, key: str, relation: str) -> float:
+    f = _float(v, path, key)
     ok = f > 0 if relation == "> 0" else f >= 0
     if not (math.isfinite(f) and ok):
         raise VehicleFileError(path, key, f"= {_short(v)}: expected a finite number {relation}")

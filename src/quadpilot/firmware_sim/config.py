@@ -14,7 +14,7 @@ import numpy as np
 
 from quadpilot.core import dynamics
 from quadpilot.core.mission import TASKS, Mission, plan_episode
-from quadpilot.core.params import VehicleParams
+from quadpilot.core.params import VehicleParams, checked_motor_tau
 from quadpilot.core.sensor_noise import SENSOR_NOISE_PRESETS, SensorNoise, get_sensor_noise
 from quadpilot.core.start import sample_start_states
 from quadpilot.core.vehicle_file import get_preset
@@ -53,7 +53,7 @@ class SimConfig:
     """Multiplies the preset's three principal inertias."""
     motor_scale: float = 1.0
     """Multiplies the rotor thrust coefficient k_f (weaker or stronger motors)."""
-    motor_tau_s: float | None = None
+    motor_tau: float | None = None
     """s, first-order motor time constant replacing the preset's (0 for the shipped presets)."""
     wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """m/s, constant wind velocity in world ENU. It acts through linear drag, F = drag·(wind − v)."""
@@ -170,8 +170,8 @@ class SimConfig:
             v = getattr(self, name)
             if len(v) != 3 or not all(math.isfinite(float(x)) for x in v):
                 raise ValueError(f"{name} must be three finite numbers (x, y, z), got {v!r}")
-        if self.motor_tau_s is not None and not (math.isfinite(self.motor_tau_s) and self.motor_tau_s >= 0):
-            raise ValueError(f"motor_tau_s must be a finite number ≥ 0 (s), got {self.motor_tau_s!r}")
+        if self.motor_tau is not None:
+            checked_motor_tau(self.motor_tau)
         if self.drag is not None and not (math.isfinite(self.drag) and self.drag >= 0):
             raise ValueError(f"drag must be a finite number ≥ 0 (N·s/m), got {self.drag!r}")
         for name, lo in (("gps_every", 1), ("max_steps", 1), ("seed", 0)):
@@ -231,8 +231,8 @@ class SimConfig:
         """The simulated airframe: `base_vehicle` with the scales and the drag applied."""
         s = self.inertia_scale
         scaled = self.base_vehicle.scaled(mass=self.mass_scale, ixx=s, iyy=s, izz=s, k_f=self.motor_scale)
-        if self.motor_tau_s is not None:
-            scaled = dataclasses.replace(scaled, motor_tau=self.motor_tau_s)
+        if self.motor_tau is not None:
+            scaled = dataclasses.replace(scaled, motor_tau=self.motor_tau)
         return dataclasses.replace(scaled, drag=self.effective_drag)
 
     @property

@@ -154,8 +154,13 @@ def _sensor_preset(args) -> str:
 
 
 def check_motor_tau(args) -> None:
-    if args.motor_tau is not None and not (math.isfinite(args.motor_tau) and args.motor_tau >= 0):
-        raise UsageError(f"--motor-tau must be a finite number of seconds ≥ 0, got {args.motor_tau}")
+    from quadpilot.core.params import checked_motor_tau
+
+    if args.motor_tau is not None:
+        try:
+            checked_motor_tau(args.motor_tau)
+        except ValueError:
+            raise UsageError(f"--motor-tau must be a finite number of seconds ≥ 0, got {args.motor_tau}") from None
 
 
 def check_heading_offset(args) -> None:
