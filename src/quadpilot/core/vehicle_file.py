@@ -3,7 +3,7 @@
 The shipped presets are files of this package (`quadpilot/vehicles/<name>.toml`), and a user's file
 works the same way. The schema takes the numbers as RotorPy's and PX4's parameter sets give them:
 
-    name = "px4_sih_quadx"     # letters, digits, "_", "-", "." (it names the vehicle in messages and metadata)
+    name = "px4_sih_quadx"     # letters, digits, "_", ".", "+", "-" (it names the vehicle in messages and metadata)
     mass = 1.0                 # kg
     ixx = 0.025                # kg m^2, principal inertias (diagonal inertia tensor)
     iyy = 0.025
@@ -79,7 +79,11 @@ VEHICLES_DIR = Path(__file__).resolve().parent.parent / "vehicles"
 MAX_FILE_BYTES = 64 * 1024
 """A vehicle file is a few hundred bytes; anything beyond this is not one (and is not read whole)."""
 
-NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_.+-]{1,64}")
+"""A vehicle's name (`NAME_RULE`), the one rule wherever a name is read or written: a vehicle file,
+a policy file's metadata (`modelfile`), the C the generator writes it into, the vehicle file the
+simulator is given for a policy's vehicle. None of its characters needs quoting in TOML, JSON or C."""
+NAME_RULE = "1-64 letters, digits, '_', '.', '+' or '-'"
 
 _REQUIRED = ("name", "mass", "ixx", "iyy", "izz", "k_thrust", "k_torque", "omega_max", "rotor")
 _ROTOR_AERO = ("k_d", "k_z", "k_h", "k_flap")
@@ -176,7 +180,7 @@ def _from_table(doc: dict, path) -> VehicleParams:
     name = doc["name"]
     if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
         found = f"{_short(name)!r}" if isinstance(name, str) else _type(name)
-        raise VehicleFileError(path, "name", f"expected 1-64 letters, digits, '_', '-' or '.', found {found}")
+        raise VehicleFileError(path, "name", f"expected {NAME_RULE}, found {found}")
 
     def number(key: str, relation: str, default: float | None = None) -> float:
         if key not in doc:
@@ -332,7 +336,7 @@ def vehicle_to_toml(v: VehicleParams) -> str:
     if v.gravity != GRAVITY:
         raise ValueError(f"vehicle {v.name!r}: gravity {v.gravity} is not {GRAVITY}; a vehicle file cannot hold it")
     if not NAME_PATTERN.fullmatch(v.name):
-        raise ValueError(f"vehicle name {_short(v.name)!r}: a vehicle file needs 1-64 letters, digits, '_', '-', '.'")
+        raise ValueError(f"vehicle name {_short(v.name)!r}: a vehicle file needs {NAME_RULE}")
     k_torque = _pick(v.k_m * v.k_f, lambda t: _round12(t / v.k_f) == v.k_m)
     lines = [
         f'name = "{v.name}"',
@@ -400,6 +404,12 @@ UNITS = {
 
 def _rotor_rows(rotors) -> str:
     return " ".join(f"({r.x:.4g}, {r.y:.4g}, {r.spin})" for r in rotors)
+
+
+def same_vehicle(a: VehicleParams, b: VehicleParams) -> bool:
+    """Whether two vehicles are the same airframe: every field equal but the name (`differences`
+    says what differs)."""
+    return not differences(a, b)
 
 
 def differences(a: VehicleParams, b: VehicleParams) -> list[str]:

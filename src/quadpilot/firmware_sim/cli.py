@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -23,6 +22,7 @@ from quadpilot.core.vehicle_file import (
     VehicleFileError,
     is_vehicle_path,
     resolve_vehicle,
+    same_vehicle,
     vehicle_to_toml,
 )
 from quadpilot.link.spin import MAX_SPIN_US
@@ -50,7 +50,7 @@ def policy_vehicle_args(
     is that preset exactly, else a vehicle file written into `tmp`."""
     if requested is not None:
         flown = resolve_vehicle(requested)
-        if dataclasses.replace(flown, name="") != dataclasses.replace(policy_vehicle, name=""):
+        if not same_vehicle(flown, policy_vehicle):
             warn(
                 f"--vehicle {requested} ({flown.name}, {flown.mass:g} kg) differs from the vehicle the policy "
                 f"was trained on ({policy_vehicle.name}, {policy_vehicle.mass:g} kg)"
@@ -58,10 +58,8 @@ def policy_vehicle_args(
         return []
     if PRESETS.get(policy_vehicle.name) == policy_vehicle:
         return [f"--vehicle={policy_vehicle.name}"]
-    # the name only labels the vehicle (and picks its sensor models): one a file can hold
-    name = re.sub(r"[^A-Za-z0-9_.-]", "_", policy_vehicle.name)[:64] or "policy_vehicle"
-    path = tmp / "policy_vehicle.toml"
-    path.write_text(vehicle_to_toml(dataclasses.replace(policy_vehicle, name=name)), encoding="utf-8")
+    path = tmp / "policy_vehicle.toml"  # its name follows the one rule a model file's does (NAME_PATTERN)
+    path.write_text(vehicle_to_toml(policy_vehicle), encoding="utf-8")
     return [f"--vehicle={path}"]
 
 

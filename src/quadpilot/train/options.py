@@ -116,7 +116,7 @@ def make_config(algo, explicit: dict, preset: str | None):
 # --- the environment -------------------------------------------------------------------------
 
 
-def resolve_vehicle(args) -> None:
+def resolve_vehicle_arg(args) -> None:
     """--vehicle NAME|FILE.toml: a shipped name stays a name (`core.vehicle_file.get_preset`, equal to its
     file), a file becomes its VehicleParams. UnknownVehicleError (exit 2) or VehicleFileError (exit 1)."""
     from quadpilot.core.vehicle_file import is_vehicle_path, resolve_vehicle
