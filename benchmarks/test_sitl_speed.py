@@ -49,7 +49,8 @@ from baseline import BASELINE_COMMIT, REPO, BaselineUnavailable, baseline_src
 from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.core import dynamics
 from quadpilot.core.observation import build_observation
-from quadpilot.core.params import ParamBatch, get_preset
+from quadpilot.core.params import ParamBatch
+from quadpilot.core.vehicle_file import get_preset
 from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.sitl import SHIPPED_HOVER
 from quadpilot.sitl.simulator_process import start_simulator

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quadpilot.core.params import SEED_VEHICLE, ParamBatch
+from quadpilot.core.params import ParamBatch
 from quadpilot.core.randomization import AIRFRAMES, PRESETS, Randomizer, draw_airframes, preset
-from quadpilot.core.vehicle_file import load_vehicle_file
+from quadpilot.core.vehicle_file import SEED_VEHICLE, load_vehicle_file
 from quadpilot.train.batch import QuadBatch
 from quadpilot.train.envs import make_config
 

@@ -13,8 +13,8 @@ import pytest
 import torch
 
 from quadpilot.core.dynamics import action_to_command
-from quadpilot.core.params import QUAD_X_UNIT, flu_layout, get_preset, unit_layout
-from quadpilot.core.vehicle_file import load_vehicle_file, resolve_vehicle
+from quadpilot.core.params import QUAD_X_UNIT, flu_layout, unit_layout
+from quadpilot.core.vehicle_file import get_preset, load_vehicle_file, resolve_vehicle
 from quadpilot.export.cli import main
 from quadpilot.runtime.backends import load_policy as load_runtime_policy
 from quadpilot.train.envs import make_config

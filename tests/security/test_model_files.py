@@ -33,9 +33,10 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from onnx import helper, numpy_helper
 
-from quadpilot.core.params import CRAZYFLIE, PRESETS, SEED_VEHICLE, ParamBatch, VehicleParams
+from quadpilot.core.params import ParamBatch, VehicleParams
 from quadpilot.core.randomization import PRESETS as RANDOMIZATION_PRESETS
 from quadpilot.core.randomization import preset as randomization_preset
+from quadpilot.core.vehicle_file import CRAZYFLIE, PRESETS, SEED_VEHICLE
 from quadpilot.modelfile.model import ModelContractError, read_model
 from quadpilot.runtime import SafetyMonitor, backends
 from quadpilot.runtime.backends import BACKENDS, ObservationShapeError, OnnxRuntimePolicy, load_policy

@@ -7,8 +7,9 @@ import dataclasses
 import numpy as np
 
 from quadpilot.core import dynamics
-from quadpilot.core.params import PX4_SIH_QUADX, ParamBatch
+from quadpilot.core.params import ParamBatch
 from quadpilot.core.state import ATT, VEL, Z
+from quadpilot.core.vehicle_file import PX4_SIH_QUADX
 from quadpilot.simulator import sensors
 from quadpilot.simulator.plant import Plant
 

@@ -152,7 +152,7 @@ def test_the_ground_holds_the_vehicle_until_its_thrust_exceeds_its_weight_then_i
     the thrust is below the weight; off it from the first step the thrust exceeds it. The thrust of a
     step is the mean of ω² over it, ω = 1 − e^(−t/τ): ∫ω² dt over the step, over its length."""
     tau = 0.05
-    vehicle = SimConfig(motor_tau_s=tau).vehicle_params
+    vehicle = SimConfig(motor_tau=tau).vehicle_params
     p = plant(vehicle=vehicle)
     p.reset(landed_state())
     dt = p.dt

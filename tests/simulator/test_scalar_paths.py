@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from quadpilot.core import dynamics
-from quadpilot.core.params import CRAZYFLIE, PX4_SIH_QUADX, SEED_VEHICLE, ParamBatch, Rotor
-from quadpilot.core.vehicle_file import load_vehicle_file
+from quadpilot.core.params import ParamBatch, Rotor
+from quadpilot.core.vehicle_file import CRAZYFLIE, PX4_SIH_QUADX, SEED_VEHICLE, load_vehicle_file
 from quadpilot.simulator import single_step
 from quadpilot.simulator.plant import Plant
 from quadpilot.simulator.single_step import SingleStep

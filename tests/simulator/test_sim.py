@@ -512,7 +512,7 @@ def test_sim_only_cli_serves_and_reports(capsys):
 
 
 def test_gusts_are_a_gauss_markov_wind_with_the_asked_spread_and_time_constant():
-    from quadpilot.core.params import get_preset
+    from quadpilot.core.vehicle_file import get_preset
     from quadpilot.simulator import Plant
 
     vehicle = SimConfig(gust=1.5).vehicle_params

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from test_sim import by_type, config, connect, finish, read_step, send, serving
 
-from quadpilot.core.params import PX4_SIH_QUADX, SEED_VEHICLE
+from quadpilot.core.vehicle_file import PX4_SIH_QUADX, SEED_VEHICLE
 from quadpilot.simulator import Plant, SimConfig, main_sim_only
 
 SIH_FILE = str(Path(__file__).parents[2] / "src/quadpilot/vehicles/px4_sih_quadx.toml")

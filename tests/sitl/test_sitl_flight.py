@@ -17,7 +17,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from quadpilot.autopilot.node import Node, NodeConfig, heading_within_reach
 from quadpilot.core import dynamics
 from quadpilot.core.observation import build_observation
-from quadpilot.core.params import ParamBatch, get_preset
+from quadpilot.core.params import ParamBatch
+from quadpilot.core.vehicle_file import get_preset
 from quadpilot.link import wire
 from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.simulator import SimConfig, Simulator

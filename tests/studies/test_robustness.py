@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quadpilot.core.params import SEED_VEHICLE
+from quadpilot.core.vehicle_file import SEED_VEHICLE
 from quadpilot.simulator import DEFAULT_WIND_DRAG, SimConfig
 from quadpilot.studies.robustness import (
     SCENARIOS,

@@ -38,7 +38,8 @@ import sys
 import numpy as np
 import pytest
 
-from quadpilot.core.params import SEED_VEHICLE, Rotor
+from quadpilot.core.params import Rotor
+from quadpilot.core.vehicle_file import SEED_VEHICLE
 from quadpilot.train.envs import QuadEnv, QuadVectorEnv, make_config
 from quadpilot.train.evaluate import evaluate
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from quadpilot.core import mission
-from quadpilot.core.params import SEED_VEHICLE
+from quadpilot.core.vehicle_file import SEED_VEHICLE
 from quadpilot.runtime.fallback import FallbackController, FallbackGains
 from quadpilot.train.envs import QuadBatch, make_config
 from quadpilot.train.evaluate import evaluate

@@ -11,8 +11,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from quadpilot.core.params import CRAZYFLIE, SEED_VEHICLE
 from quadpilot.core.randomization import PRESETS, RandomizationConfig
+from quadpilot.core.vehicle_file import CRAZYFLIE, SEED_VEHICLE
 from quadpilot.train.cli import main
 from quadpilot.train.envs import EnvConfig, QuadBatch, QuadVectorEnv, make_config
 from quadpilot.train.evaluate import evaluate

@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from quadpilot.core import px4_raptor as pr
-from quadpilot.core.params import Rotor, get_preset, quad_x
-from quadpilot.core.vehicle_file import resolve_vehicle
+from quadpilot.core.params import Rotor, quad_x
+from quadpilot.core.vehicle_file import get_preset, resolve_vehicle
 from quadpilot.train.cli import main
 from quadpilot.train.raptor_distill import (
     DistillConfig,

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from quadpilot.core.dynamics import IDX
-from quadpilot.core.params import CRAZYFLIE, SEED_VEHICLE
+from quadpilot.core.vehicle_file import CRAZYFLIE, SEED_VEHICLE
 from quadpilot.viz import FlightTrace, VizUnavailable, body_points, display_arm, frame_indices
 from quadpilot.viz.geometry import arm_length_of, rotor_discs
 

@@ -3,7 +3,8 @@ dynamics, frames, the observation layout, reward and termination maths. Imports 
 
 from .dynamics import DT, MOTOR_NAMES, STATE_DIM, STATE_NAMES, action_to_command, hover_command, step
 from .observation import HOVER_LAYOUT, LAYOUTS, TRACK_LAYOUT, ObsLayout, build_observation, get_layout
-from .params import CRAZYFLIE, PRESETS, SEED_VEHICLE, ParamBatch, VehicleParams, get_preset
+from .params import ParamBatch, VehicleParams
+from .vehicle_file import CRAZYFLIE, PRESETS, SEED_VEHICLE, get_preset
 
 __all__ = [
     "CRAZYFLIE",

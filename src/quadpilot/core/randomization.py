@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .params import GRAVITY, SEED_VEHICLE, ParamBatch, VehicleParams
+from .params import GRAVITY, ParamBatch, VehicleParams
+from .vehicle_file import SEED_VEHICLE
 
 Range = tuple[float, float]
 

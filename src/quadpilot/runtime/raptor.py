@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from quadpilot.core import px4_raptor
-from quadpilot.core.params import get_preset
+from quadpilot.core.vehicle_file import get_preset
 from quadpilot.modelfile.contract import ModelContractError, ModelInfo
 
 from .gru import EXAMPLE_TOLERANCE, GruStep, OnnxGruStep, check_example, weights_from_h5

@@ -14,8 +14,9 @@ from pathlib import Path
 from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, float_in
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
-from quadpilot.core.params import PRESETS
+from quadpilot.core.params import checked_motor_tau
 from quadpilot.core.vehicle_file import (
+    PRESETS,
     UnknownVehicleError,
     VehicleFileError,
     is_vehicle_path,
@@ -75,6 +76,17 @@ def _non_negative(text: str) -> float:
     if not (math.isfinite(v) and v >= 0):
         raise argparse.ArgumentTypeError(f"expected a finite number ≥ 0, got {text!r}")
     return v
+
+
+def _motor_tau(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    try:
+        return checked_motor_tau(v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a finite number ≥ 0, got {text!r}") from None
 
 
 def _int_at_least(lo: int):
@@ -142,7 +154,7 @@ def passed_on_flags() -> dict[str, dict]:
         default=d.motor_scale,
         help="multiplies the thrust coefficient k_f",
     )
-    _flag(table, "--motor-tau", type=_non_negative, default=None, metavar="S", help="motor time constant, s")
+    _flag(table, "--motor-tau", type=_motor_tau, default=None, metavar="S", help="motor time constant, s")
     _flag(table, "--wind", type=_wind, default=d.wind, metavar="E,N,U", help="constant wind, m/s world ENU")
     _flag(table, "--gust", type=_non_negative, default=d.gust, metavar="M/S", help="gust std per axis, m/s")
     _flag(
@@ -271,7 +283,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
             mass_scale=args.mass_scale,
             inertia_scale=args.inertia_scale,
             motor_scale=args.motor_scale,
-            motor_tau_s=args.motor_tau,
+            motor_tau=args.motor_tau,
             wind=args.wind,
             gust=args.gust,
             gust_tau_s=args.gust_tau,

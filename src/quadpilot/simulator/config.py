@@ -14,9 +14,10 @@ import numpy as np
 
 from quadpilot.core import dynamics
 from quadpilot.core.mission import TASKS, Mission, plan_episode
-from quadpilot.core.params import VehicleParams, get_preset
+from quadpilot.core.params import VehicleParams, checked_motor_tau
 from quadpilot.core.sensor_noise import SENSOR_NOISE_PRESETS, SensorNoise, get_sensor_noise
 from quadpilot.core.start import sample_start_states
+from quadpilot.core.vehicle_file import get_preset
 from quadpilot.link import wire
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, check_spin
 from quadpilot.link.transport import Address, parse_address
@@ -45,14 +46,14 @@ class SimConfig:
     """Where to listen: tcp:HOST:PORT (PX4's simulators use TCP 4560) or udp:HOST:PORT. Port 0
     picks a free port (see `Simulator.address`). Loopback by default."""
     vehicle: str = "seed"
-    """Airframe preset name ("seed", "crazyflie", "px4_sih_quadx"), see `core.params.get_preset`."""
+    """Airframe preset name ("seed", "crazyflie", "px4_sih_quadx"), see `core.vehicle_file.get_preset`."""
     mass_scale: float = 1.0
     """Multiplies the preset's mass (the controller still believes the nominal one)."""
     inertia_scale: float = 1.0
     """Multiplies the preset's three principal inertias."""
     motor_scale: float = 1.0
     """Multiplies the rotor thrust coefficient k_f (weaker or stronger motors)."""
-    motor_tau_s: float | None = None
+    motor_tau: float | None = None
     """s, first-order motor time constant replacing the preset's (0 for the shipped presets)."""
     wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """m/s, constant wind velocity in world ENU. It acts through linear drag, F = drag·(wind − v)."""
@@ -169,8 +170,8 @@ class SimConfig:
             v = getattr(self, name)
             if len(v) != 3 or not all(math.isfinite(float(x)) for x in v):
                 raise ValueError(f"{name} must be three finite numbers (x, y, z), got {v!r}")
-        if self.motor_tau_s is not None and not (math.isfinite(self.motor_tau_s) and self.motor_tau_s >= 0):
-            raise ValueError(f"motor_tau_s must be a finite number ≥ 0 (s), got {self.motor_tau_s!r}")
+        if self.motor_tau is not None:
+            checked_motor_tau(self.motor_tau)
         if self.drag is not None and not (math.isfinite(self.drag) and self.drag >= 0):
             raise ValueError(f"drag must be a finite number ≥ 0 (N·s/m), got {self.drag!r}")
         for name, lo in (("gps_every", 1), ("max_steps", 1), ("seed", 0)):
@@ -230,8 +231,8 @@ class SimConfig:
         """The simulated airframe: `base_vehicle` with the scales and the drag applied."""
         s = self.inertia_scale
         scaled = self.base_vehicle.scaled(mass=self.mass_scale, ixx=s, iyy=s, izz=s, k_f=self.motor_scale)
-        if self.motor_tau_s is not None:
-            scaled = dataclasses.replace(scaled, motor_tau=self.motor_tau_s)
+        if self.motor_tau is not None:
+            scaled = dataclasses.replace(scaled, motor_tau=self.motor_tau)
         return dataclasses.replace(scaled, drag=self.effective_drag)
 
     @property

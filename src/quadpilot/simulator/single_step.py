@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 
+from quadpilot.core.dynamics import lag_factors
 from quadpilot.core.frames import scalar_trig_agrees
 from quadpilot.core.params import ParamBatch
 
@@ -99,11 +100,7 @@ class SingleStep:
         self.u_min = one(p.omega_min / p.omega_max) if np.any(p.omega_min > 0) else 0.0
         self.lag = bool(np.any(p.motor_tau > 0))
         if self.lag:
-            tau = np.asarray(p.motor_tau, dtype=np.float64)
-            self.decay = one(np.where(tau > 0, np.exp(-h / np.where(tau > 0, tau, 1.0)), 0.0))
-            e = np.exp(-h / np.where(tau > 0, tau, 1.0))  # the mean of ω² over the step (core.dynamics._Derived)
-            over = np.where(tau > 0, tau / h, 0.0)
-            self.lag_2a, self.lag_b = one(2.0 * over * (1.0 - e)), one(0.5 * over * (1.0 - e * e))
+            self.decay, self.lag_2a, self.lag_b = (one(a) for a in lag_factors(p.motor_tau, h))
         self.drag = bool(np.any(p.drag > 0))
         self.drag_over_m = one(p.drag / p.mass) if self.drag else 0.0
         # the quadratic body drag and the rotor aerodynamics need the air's velocity and a rotation

@@ -6,16 +6,14 @@ quad-sitl passes on to its simulator process (`add_passed_on_flags`, `sim_args`,
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
-import re
 from collections.abc import Callable
 from pathlib import Path
 
 from quadpilot.autopilot.state_loss import StateLossConfig, parse_state_loss
 from quadpilot.console import float_in
-from quadpilot.core.params import PRESETS, VehicleParams
-from quadpilot.core.vehicle_file import resolve_vehicle, vehicle_to_toml
+from quadpilot.core.params import VehicleParams
+from quadpilot.core.vehicle_file import PRESETS, resolve_vehicle, same_vehicle, vehicle_to_toml
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, MAX_SPIN_US
 from quadpilot.simulator.cli import passed_on_flags
 
@@ -263,7 +261,7 @@ def policy_vehicle_args(
     is that preset exactly, else a vehicle file written into `tmp`."""
     if requested is not None:
         flown = resolve_vehicle(requested)
-        if dataclasses.replace(flown, name="") != dataclasses.replace(policy_vehicle, name=""):
+        if not same_vehicle(flown, policy_vehicle):
             warn(
                 f"--vehicle {requested} ({flown.name}, {flown.mass:g} kg) differs from the vehicle the policy "
                 f"was trained on ({policy_vehicle.name}, {policy_vehicle.mass:g} kg)"
@@ -271,8 +269,6 @@ def policy_vehicle_args(
         return []
     if PRESETS.get(policy_vehicle.name) == policy_vehicle:
         return [f"--vehicle={policy_vehicle.name}"]
-    # the name only labels the vehicle (and picks its sensor models): one a file can hold
-    name = re.sub(r"[^A-Za-z0-9_.-]", "_", policy_vehicle.name)[:64] or "policy_vehicle"
-    path = tmp / "policy_vehicle.toml"
-    path.write_text(vehicle_to_toml(dataclasses.replace(policy_vehicle, name=name)), encoding="utf-8")
+    path = tmp / "policy_vehicle.toml"  # its name follows the one rule a model file's does (NAME_PATTERN)
+    path.write_text(vehicle_to_toml(policy_vehicle), encoding="utf-8")
     return [f"--vehicle={path}"]

@@ -37,7 +37,7 @@ from .options import (
     SIZE_OPTIONS,
     check_heading_offset,
     check_motor_tau,
-    resolve_vehicle,
+    resolve_vehicle_arg,
     upper_bounds,
 )
 
@@ -340,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         if args.snapshot_every and args.algo == "sb3":
             raise UsageError("--snapshot-every is for our PPO and SAC; --algo sb3 writes no snapshots")
-        resolve_vehicle(args)
+        resolve_vehicle_arg(args)
         if args.vehicle is not None and args.randomize == "airframes":  # its rotor aerodynamics would go to every draw
             raise UsageError(
                 "--vehicle with --randomize airframes: the training draws every episode's airframe itself; "

@@ -36,11 +36,12 @@ from quadpilot.core.observation import (
     TRACK_LAYOUT_V1,
     ObsLayout,
 )
-from quadpilot.core.params import ParamBatch, VehicleParams, get_preset
+from quadpilot.core.params import ParamBatch, VehicleParams
 from quadpilot.core.randomization import RandomizationConfig
 from quadpilot.core.randomization import preset as randomization_preset
 from quadpilot.core.reward import RewardConfig
 from quadpilot.core.sensor_noise import SensorNoise, get_sensor_noise
+from quadpilot.core.vehicle_file import get_preset
 
 from .batch import QuadBatch
 

@@ -116,8 +116,8 @@ def make_config(algo, explicit: dict, preset: str | None):
 # --- the environment -------------------------------------------------------------------------
 
 
-def resolve_vehicle(args) -> None:
-    """--vehicle NAME|FILE.toml: a shipped name stays a name (`core.params.get_preset`, equal to its
+def resolve_vehicle_arg(args) -> None:
+    """--vehicle NAME|FILE.toml: a shipped name stays a name (`core.vehicle_file.get_preset`, equal to its
     file), a file becomes its VehicleParams. UnknownVehicleError (exit 2) or VehicleFileError (exit 1)."""
     from quadpilot.core.vehicle_file import is_vehicle_path, resolve_vehicle
 
@@ -130,7 +130,8 @@ def resolve_vehicle(args) -> None:
 
 def _vehicle(args):
     """The VehicleParams --vehicle names (seed without it)."""
-    from quadpilot.core.params import VehicleParams, get_preset
+    from quadpilot.core.params import VehicleParams
+    from quadpilot.core.vehicle_file import get_preset
 
     v = args.vehicle or "seed"
     return v if isinstance(v, VehicleParams) else get_preset(v)
@@ -153,8 +154,13 @@ def _sensor_preset(args) -> str:
 
 
 def check_motor_tau(args) -> None:
-    if args.motor_tau is not None and not (math.isfinite(args.motor_tau) and args.motor_tau >= 0):
-        raise UsageError(f"--motor-tau must be a finite number of seconds ≥ 0, got {args.motor_tau}")
+    from quadpilot.core.params import checked_motor_tau
+
+    if args.motor_tau is not None:
+        try:
+            checked_motor_tau(args.motor_tau)
+        except ValueError:
+            raise UsageError(f"--motor-tau must be a finite number of seconds ≥ 0, got {args.motor_tau}") from None
 
 
 def check_heading_offset(args) -> None:

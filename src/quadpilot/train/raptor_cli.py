@@ -41,13 +41,10 @@ def check(args) -> None:
         )
 
 
-def _same_vehicle(a, b) -> bool:
-    return dataclasses.replace(a, name="") == dataclasses.replace(b, name="")
-
-
 def shipped_teacher(vehicle) -> Path | None:
     """The shipped MLP hover policy (policy.pt) trained for this vehicle, if there is one."""
     from quadpilot.core.params import VehicleParams
+    from quadpilot.core.vehicle_file import same_vehicle
     from quadpilot.runtime.shipped import models_dir
 
     root = models_dir()
@@ -59,7 +56,7 @@ def shipped_teacher(vehicle) -> Path | None:
                 continue
             if env.get("sensor_noise") or not (d / "policy.pt").is_file():
                 continue
-            if _same_vehicle(VehicleParams(**env["vehicle"]), vehicle):
+            if same_vehicle(VehicleParams(**env["vehicle"]), vehicle):
                 return d / "policy.pt"
         except (OSError, ValueError, KeyError, TypeError):
             continue  # a folder that is not a quad-train run
@@ -87,9 +84,9 @@ def distill_config(args, episode_steps: int, sizes: bool = True) -> DistillConfi
 
 def _teacher(teacher, path: Path, vehicle):
     """The loaded teacher, if it is one the contract can distil for `vehicle` (UsageError, one line)."""
-    if not _same_vehicle(teacher.env_config.params, vehicle):
-        from quadpilot.core.vehicle_file import differences
+    from quadpilot.core.vehicle_file import differences, same_vehicle
 
+    if not same_vehicle(teacher.env_config.params, vehicle):
         flown = teacher.env_config.params
         apart = differences(flown, vehicle)
         which = f"{flown.name}, not {vehicle.name}" if flown.name != vehicle.name else f"another {vehicle.name}"
