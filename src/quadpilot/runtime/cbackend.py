@@ -245,7 +245,7 @@ class CPolicy(Policy):
         code = cgen.generate_network(info, net)
         return cls(info, code, build_library(code))
 
-    def _act(self, x: np.ndarray) -> np.ndarray:
+    def act_unchecked(self, x: np.ndarray) -> np.ndarray:
         self._obs[...] = x
         self._call()
         return self._out.copy()
