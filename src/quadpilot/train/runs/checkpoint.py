@@ -291,7 +291,7 @@ class TrainedPolicy:
             raise ValueError(f"observations must have shape (N, {self.layout.dim}), got {raw_obs.shape}")
         return raw_obs
 
-    def _input(self, raw_obs: np.ndarray) -> torch.Tensor:
+    def network_input(self, raw_obs: np.ndarray) -> torch.Tensor:
         """The network's input for raw observations (N, obs_dim), normalised if the run normalised."""
         return self._act.network_input(self._check(raw_obs))
 
