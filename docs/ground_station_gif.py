@@ -108,7 +108,7 @@ def draw(t, pos, phases, goals, out: Path) -> int:
     """Write the GIF; returns its number of frames."""
     from matplotlib.collections import LineCollection
 
-    from quadpilot.console import atomic_output
+    from quadpilot.atomic_files import atomic_output
     from quadpilot.viz._mpl import new_figure
     from quadpilot.viz.video import gif_writer_class  # the project's shared-palette PillowWriter
 

@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 
 import quadpilot.sitl_node as sitl_node
-from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, input_path_problem, os_error_line
+from quadpilot.atomic_files import atomic_write
+from quadpilot.console import Parser, UsageError, check_output_path, input_path_problem, os_error_line
 from quadpilot.console import int_in as _int_in
 from quadpilot.firmware_sim.cli import add_passed_on_flags, passed_on_tokens
 

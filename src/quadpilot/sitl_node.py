@@ -38,8 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
+from quadpilot.atomic_files import atomic_output, atomic_write
 from quadpilot.autopilot.state_loss import StateLossConfig, parse_state_loss
-from quadpilot.console import atomic_output, atomic_write, float_in
+from quadpilot.console import float_in
 from quadpilot.link.impair import summary_line as impair_summary
 from quadpilot.link.spin import LOCKSTEP_SPIN_S, MAX_SPIN_US
 

@@ -29,7 +29,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
 from quadpilot.core.state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW

@@ -13,7 +13,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, float_in
+from quadpilot.atomic_files import atomic_write
+from quadpilot.console import Parser, UsageError, check_output_path, float_in
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
 from quadpilot.core.params import PRESETS, VehicleParams

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_output
+from quadpilot.atomic_files import atomic_output
 
 from ._mpl import new_figure
 from .geometry import arm_length_of

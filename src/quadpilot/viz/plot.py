@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_output
+from quadpilot.atomic_files import atomic_output
 from quadpilot.core.dynamics import ATT, MOTOR_NAMES, VEL
 from quadpilot.core.mission import SUCCESS_TOLERANCE_M
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_output
+from quadpilot.atomic_files import atomic_output
 from quadpilot.core.dynamics import ATT, POS
 
 from ._mpl import MATPLOTLIB_MISSING, VizUnavailable, new_figure
