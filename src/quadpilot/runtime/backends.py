@@ -7,11 +7,11 @@
 `OnnxRuntimePolicy` runs the graph in an ONNX Runtime session created once, single-threaded, with
 its inputs and outputs bound to preallocated buffers (I/O binding saves the per-call conversion
 of `session.run`). The NumPy and C backends compute the network the file's architecture metadata
-describes, read once from the file's initializers into a `network.Network`: `NumpyPolicy`
-computes it with NumPy; `cbackend.CPolicy` (backend "c") generates C from it (`cgen`, what
-`quad-export --format c` writes), compiles it once with the system C compiler and calls it through
-ctypes. All three implement `policy.Policy`. None knows about safety: wrap them in
-`safety.SafetyMonitor`.
+describes, read once from the file's initializers into a `modelfile.network.Network`:
+`NumpyPolicy` computes it with NumPy; `cbackend.CPolicy` (backend "c") generates C from it
+(`ccode.generate`, what `quad-export --format c` writes), compiles it once with the system C
+compiler and calls it through ctypes. All three implement `policy.Policy`. None knows about
+safety: wrap them in `safety.SafetyMonitor`.
 
 Rules, so that the three backends fly one function or none flies:
 - `load_policy` checks the file's contract first (`model.read_model`: every metadata value, and a
