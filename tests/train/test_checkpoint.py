@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
 from quadpilot.train.runs.checkpoint import (

@@ -118,7 +118,7 @@ class CCode:
         """Write policy.h and policy.c into `directory` (created), atomically; returns both paths."""
         from pathlib import Path
 
-        from quadpilot.console import atomic_write
+        from quadpilot.atomic_files import atomic_write
 
         directory = Path(directory)
         paths = []

@@ -268,7 +268,7 @@ def _retargeted(args, out: Path) -> Path:
     """Write the policy retargeted to --vehicle as <output>.pt and return its path."""
     import torch
 
-    from quadpilot.console import atomic_write
+    from quadpilot.atomic_files import atomic_write
     from quadpilot.train.retarget import retarget_checkpoint
     from quadpilot.train.runs.checkpoint_read import load_checkpoint
 

@@ -29,7 +29,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
 from quadpilot.core.state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
@@ -195,13 +195,13 @@ def reference_commands(policy: TrainedPolicy, obs: np.ndarray, starts: np.ndarra
     if not policy.recurrent and getattr(policy.model, "squash", None) == "tanh":
         # SAC: the network's z (float32), then tanh and the map in float64 (see DeployablePolicy)
         with torch.inference_mode():
-            z = policy.model.actor[:-1](policy._input(obs)).numpy().astype(np.float64)
+            z = policy.model.unsquashed_mean(policy.network_input(obs)).numpy().astype(np.float64)
         return action_to_command(np.tanh(z), u_hover)
     if not policy.recurrent:
         return action_to_command(policy(obs).astype(np.float64), u_hover)
     t, b, d = obs.shape
     with torch.inference_mode():
-        x = policy._input(obs.reshape(t * b, d)).reshape(t, b, d)
+        x = policy.network_input(obs.reshape(t * b, d)).reshape(t, b, d)
         mean, _ = policy.model.actor_sequence(x, policy.initial_state(b), torch.from_numpy(starts))
     return action_to_command(mean.clamp(-1.0, 1.0).numpy().astype(np.float64), u_hover)
 

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.core import px4_raptor
 from quadpilot.core.vehicle_file import vehicle_to_toml
 from quadpilot.runtime import gru, rltools_tar

@@ -13,7 +13,7 @@ Everything in the file is untrusted: its graph and every metadata string (docs/a
   u_hover); the envelope; the architecture (known keys only, finite ordered
   clips, bounded sizes); the golden vectors (finite, bounded count). JSON NaN and Infinity are
   refused. Strings read from the file are never executed and never pasted into generated code:
-  `cgen` writes only numbers it formats itself and text from this runtime's own tables, and the
+  `ccode.generate` writes only numbers it formats itself and text from our own tables, and the
   strings it does write are checked here against a fixed set or a strict pattern.
 - The graph is exactly the architecture its metadata declares, operator by operator and
   initializer by initializer (`graph.check_graph`), so that ONNX Runtime, which runs the graph, and

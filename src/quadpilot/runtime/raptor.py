@@ -182,7 +182,7 @@ class RaptorPolicy(Policy):
         prev = self.executor.previous_action_input()
         return px4_raptor.observation(state, target, target_vel, 0.0 if heading is None else heading, prev)
 
-    def _act(self, x: np.ndarray) -> np.ndarray:
+    def act_unchecked(self, x: np.ndarray) -> np.ndarray:
         return self.executor.control(x)
 
     def verify_golden(self) -> float:

@@ -11,7 +11,8 @@ import math
 import sys
 from pathlib import Path
 
-from quadpilot.console import Parser, UsageError, atomic_write, check_output_path, float_in
+from quadpilot.atomic_files import atomic_write
+from quadpilot.console import Parser, UsageError, check_output_path, float_in
 from quadpilot.console import positive_float as _positive
 from quadpilot.core.mission import TASKS
 from quadpilot.core.params import checked_motor_tau

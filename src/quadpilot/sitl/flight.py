@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_write, os_error_line
+from quadpilot.atomic_files import atomic_write
+from quadpilot.console import os_error_line
 from quadpilot.sitl import simulator_process
 from quadpilot.sitl.options import COMMANDED_DURATION_S, LOCKSTEP_COMMANDED_WARNING, commanded
 from quadpilot.sitl.summary import commanded_summary, maneuver_summary, print_summary, summarise

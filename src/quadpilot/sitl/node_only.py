@@ -33,7 +33,7 @@ import json
 import sys
 from pathlib import Path
 
-from quadpilot.console import atomic_output, atomic_write
+from quadpilot.atomic_files import atomic_output, atomic_write
 from quadpilot.link.impair import summary_line as impair_summary
 from quadpilot.sitl.flight import draw
 from quadpilot.sitl.flight import fly as fly_node

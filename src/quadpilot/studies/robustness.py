@@ -37,7 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import BadFile, Parser, UsageError, atomic_write, run_command
+from quadpilot.atomic_files import atomic_write
+from quadpilot.console import BadFile, Parser, UsageError, run_command
 from quadpilot.core import dynamics
 from quadpilot.core.mission import window_success, wrap_angle, yaw_errors
 from quadpilot.core.observation import build_observation

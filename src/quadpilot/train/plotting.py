@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 
 from .runs.runlog import COLUMNS, read_metrics
 

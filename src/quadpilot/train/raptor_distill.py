@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from quadpilot.console import UsageError, atomic_write
+from quadpilot.atomic_files import atomic_write
+from quadpilot.console import UsageError
 from quadpilot.core import px4_raptor
 from quadpilot.core.mission import window_success, yaw_errors
 from quadpilot.core.state import POS, YAW

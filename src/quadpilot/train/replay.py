@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.core.params import NUM_MOTORS
 
 from .runs.checks import CheckpointError, load_weights_only

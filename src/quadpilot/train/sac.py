@@ -243,6 +243,10 @@ class SquashedGaussianActor(nn.Module):
         """The deterministic action tanh(mean) in (−1, 1): what is evaluated, exported and flown."""
         return self.actor(obs)
 
+    def unsquashed_mean(self, obs: torch.Tensor) -> torch.Tensor:
+        """The mean before the tanh, `actor` without its last layer: what an exporter squashes itself."""
+        return self.actor[:-1](obs)
+
 
 class TwinQ(nn.Module):
     """Q_θ1(s, a) and Q_θ2(s, a): two MLPs of the same shape, their weights stacked on a leading axis

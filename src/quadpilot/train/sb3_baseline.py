@@ -39,7 +39,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 
 from .envs import EnvConfig, QuadVectorEnv
 from .ppo import PPOConfig

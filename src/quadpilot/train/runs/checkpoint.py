@@ -12,7 +12,7 @@ Snapshots (`save_snapshot`, quad-train --snapshot-every) are `snapshots/policy-<
 format with the weights and normaliser of that moment and no optimizer, trainer or environment
 state (`trainer.Trainer.policy_dict`), so each loads, exports and flies like policy.pt.
 
-Writes are atomic (`console.atomic_write`: a temporary file in the same directory, flushed and
+Writes are atomic (`atomic_files.atomic_write`: a temporary file in the same directory, flushed and
 fsync'd, then `os.replace`, then the directory fsync'd), so a crash or `kill -9` leaves either the
 old file or the new one, never half of one. For resuming, `save_for_resume` keeps two generations
 (`checkpoint.pt` and `checkpoint.prev.pt`), and `load_for_resume` falls back to the older one if the
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 
 from ..algorithms import ALGORITHMS
 from ..envs import EnvConfig
@@ -157,7 +157,7 @@ def save_untrained_policy(
 def save_checkpoint(
     path: str | os.PathLike, agent: Trainer, extra: dict | None = None, keep_previous: str | None = None
 ) -> Path:
-    """Write `agent` (and the JSON-able `extra`) to `path` atomically; see `console.atomic_write`."""
+    """Write `agent` (and the JSON-able `extra`) to `path` atomically; see `atomic_files.atomic_write`."""
     data = agent.checkpoint_dict(extra)
     return atomic_write(path, lambda f: torch.save(data, f), keep_previous)
 
@@ -291,7 +291,7 @@ class TrainedPolicy:
             raise ValueError(f"observations must have shape (N, {self.layout.dim}), got {raw_obs.shape}")
         return raw_obs
 
-    def _input(self, raw_obs: np.ndarray) -> torch.Tensor:
+    def network_input(self, raw_obs: np.ndarray) -> torch.Tensor:
         """The network's input for raw observations (N, obs_dim), normalised if the run normalised."""
         return self._act.network_input(self._check(raw_obs))
 

@@ -268,7 +268,7 @@ def _check_resume_dir(out: Path) -> None:
 
 
 def _clean_stale_temps(out: Path) -> None:
-    """Temporary files of a write that a kill interrupted (see console.atomic_output)."""
+    """Temporary files of a write that a kill interrupted (see atomic_files.atomic_output)."""
     for f in out.glob(".*.tmp*"):
         if any(f.name.startswith(f".{name}.") for name in RUN_FILES):
             f.unlink(missing_ok=True)

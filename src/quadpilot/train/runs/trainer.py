@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.core.state import YAW
 
 from ..envs import EnvConfig
