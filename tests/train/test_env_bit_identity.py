@@ -40,7 +40,7 @@ import pytest
 
 from quadpilot.core.params import SEED_VEHICLE, Rotor
 from quadpilot.train.envs import QuadEnv, QuadVectorEnv, make_config
-from quadpilot.train.evaluate import evaluate
+from quadpilot.train.envs.evaluate import evaluate
 
 # the OpenBLAS core (OPENBLAS_CORETYPE, or what OpenBLAS detects without it): the digests were
 # computed with Haswell (the CI machine's OPENBLAS_CORETYPE) and are the same with SkylakeX (what
@@ -235,7 +235,7 @@ def single_digest() -> str:
 
 
 def evaluate_digest() -> str:
-    """`train.evaluate` on QuadBatch.step's outputs: a zero policy and a small linear one."""
+    """`train.envs.evaluate` on QuadBatch.step's outputs: a zero policy and a small linear one."""
     d = Digest()
     w = np.random.default_rng(9).normal(0.0, 0.05, (21, 4)).astype(np.float32)
     for task, policy in (

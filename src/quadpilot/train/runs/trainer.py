@@ -1,6 +1,6 @@
 """The trainer every algorithm is: what the run loop (`loop`) drives and what a checkpoint holds.
 
-An algorithm (PPO and its recurrent variant in `ppo` and `recurrent_ppo`, SAC in `sac`) is a
+An algorithm (PPO and its recurrent variant in `train.ppo`, SAC in `train.sac`) is a
 `Trainer` subclass. It builds its networks and optimisers in `__init__` (then `_start`), runs one
 iteration in `iterate` (one metrics.csv row: collect, then update) and names its own checkpoint
 entries in `own_state` / `load_own_state` / `own_optimizers`. The rest is here, once for every
@@ -320,6 +320,35 @@ class Trainer:
     @classmethod
     def clean_stale_files(cls, directory: Path) -> None:
         """Remove temporary files of the algorithm's own that a kill interrupted."""
+
+    # --- what the run loop and the policy reader ask the algorithm -----------------------------
+    @classmethod
+    def preset_values(cls, preset: str | None) -> dict:
+        """A fresh run's configuration values before its flags (`options.make_config`): PPO's preset."""
+        return {}
+
+    @classmethod
+    def init_from(cls, path: str, explicit: dict, algorithms: dict) -> tuple[dict, dict]:
+        """quad-train --init-from PATH: the checked policy file (read with the registry `algorithms`)
+        and `explicit` with the file's network options. PPO's only (the CLI refuses it for the others)."""
+        raise NotImplementedError
+
+    def start_from(self, ckpt: dict, source: str) -> dict:
+        """Put --init-from's policy (`init_from`) into this fresh trainer; what config.json records."""
+        raise NotImplementedError
+
+    @classmethod
+    def policy_settings(cls, ckpt: dict) -> tuple[object, bool, int]:
+        """How a checked policy file's network reads observations (`checkpoint.TrainedPolicy`): its
+        configuration (None where `policy_network` reads it), whether observations are normalised,
+        the observation history's length."""
+        return None, False, 1
+
+    @classmethod
+    def policy_network(cls, ckpt: dict, obs_dim: int, cfg) -> tuple[torch.nn.Module, object]:
+        """The deterministic policy's network of a checked policy file (eval mode, its weights not
+        loaded yet) and its configuration; `cfg` is `policy_settings`'s."""
+        raise NotImplementedError
 
 
 def _randomization_state(batch) -> dict:

@@ -1,6 +1,6 @@
 """Gymnasium environments for hover, waypoint and circle tasks, single and batched.
 
-One engine, `QuadBatch` (`train.batch`, re-exported here), owns N drones: sampling initial states,
+One engine, `QuadBatch` (`train.envs.batch`, re-exported here), owns N drones: sampling initial states,
 stepping the `core` dynamics, building observations as `core.build_observation` does, and computing
 rewards and terminations with `core.reward`, in place. `QuadEnv` is a `gymnasium.Env` over one
 drone; `QuadVectorEnv` is a `gymnasium.vector.VectorEnv` over N drones with masked same-step
