@@ -9,6 +9,7 @@ tests) and the command line."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 from .ppo import PPO
 from .runs import checkpoint, checkpoint_read
@@ -49,6 +50,6 @@ def load_trainer(path: str | os.PathLike) -> Trainer:
     return checkpoint.load_trainer(path, ALGORITHMS)
 
 
-def load_for_resume(directory: str | os.PathLike) -> tuple[dict, os.PathLike, str | None]:
+def load_for_resume(directory: str | os.PathLike) -> tuple[dict, Path, str | None]:
     """The newest readable checkpoint of a run directory (`runs.checkpoint.load_for_resume`)."""
     return checkpoint.load_for_resume(directory, ALGORITHMS)

@@ -78,6 +78,7 @@ class PPO(trainer.Trainer):
 
     algo = "ppo"
     unit = "update"
+    default_preset = "fast"
     Config = PPOConfig
     columns = runlog.COLUMNS
     run_keys = (

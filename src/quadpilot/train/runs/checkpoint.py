@@ -18,6 +18,11 @@ old file or the new one, never half of one. For resuming, `save_for_resume` keep
 (`checkpoint.pt` and `checkpoint.prev.pt`), and `load_for_resume` falls back to the older one if the
 newer is unreadable. Reading a file checks every entry (`checkpoint_read.load_checkpoint`) before
 anything is built from it.
+
+No algorithm is named here: the readers take the registry (`train.algorithms.ALGORITHMS`, where
+`load_policy` and `load_trainer` are bound to it), and `TrainedPolicy` asks the checkpoint's
+Trainer class for its network (`Trainer.policy_settings`, `Trainer.policy_network`). PPO's own
+checkpoint helpers are `train.ppo.checkpoint`'s.
 """
 
 from __future__ import annotations

@@ -304,7 +304,7 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str], algorith
     from ..envs.curriculum import CurriculumConfig
 
     _check_fresh_dir(out)
-    preset = (args.preset or "fast") if algo.algo == "ppo" else None
+    preset = (args.preset or algo.default_preset) if algo.default_preset else None
     source = None
     if getattr(args, "init_from", None) is not None:  # a fine-tune: the file's network and weights
         source, explicit = algo.init_from(args.init_from, explicit, algorithms)

@@ -74,6 +74,8 @@ class Trainer:
     """What one iteration is called in messages (PPO: update; SAC: iteration)."""
     tag: str | None = None
     """Added to the run's labels and default directory (SAC: "sac"); None for our PPO."""
+    default_preset: str | None = None
+    """The --preset a fresh run takes without one (PPO: "fast"); None: the algorithm has no presets."""
     columns: tuple[str, ...] = ()
     """metrics.csv's header."""
     run_keys: tuple[str, ...] = ()
@@ -324,7 +326,7 @@ class Trainer:
     # --- what the run loop and the policy reader ask the algorithm -----------------------------
     @classmethod
     def preset_values(cls, preset: str | None) -> dict:
-        """A fresh run's configuration values before its flags (`options.make_config`): PPO's preset."""
+        """A fresh run's configuration values before its flags (`options.make_config`): `preset`'s."""
         return {}
 
     @classmethod
