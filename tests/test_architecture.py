@@ -355,3 +355,93 @@ def test_a_private_name_used_by_another_module_is_found(tmp_path):
         "b.py:12: uses _state, a private member of another module's class",
         "b.py:14: uses _input, a private member of another module's class",
     ]
+
+
+# --- the floors inside train ------------------------------------------------------------------
+
+
+def train_floors() -> dict[str, int]:
+    """docs/architecture.md's floor table of `train`: sub-package or top-level module → floor."""
+    doc = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    table = doc.split("<!-- train-floors", 1)[1].split("<!-- /train-floors -->", 1)[0]
+    floors = {}
+    for line in table.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].isdigit():
+            floors.update(dict.fromkeys(re.findall(r"`([a-z_0-9]+)`", cells[1]), int(cells[0])))
+    return floors
+
+
+def train_imports(train: Path) -> list[tuple[str, str, str]]:
+    """Every import between the parts of the package `train` (its sub-packages and top-level
+    modules), at module level or inside a function: (file:line, importing part, imported part).
+    A file's part is its first folder under `train`, or its own name at the top."""
+    found = []
+    for path in sorted(train.rglob("*.py")):
+        rel = path.relative_to(train)
+        if rel == Path("__init__.py"):
+            continue  # the package itself: it registers the environments and imports nothing of ours
+        part = rel.parts[0].removesuffix(".py")
+        package = list(rel.parts[:-1])  # the importing file's package, as folders under train
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                if node.level - 1 > len(package):
+                    continue  # above train: another of our packages
+                mod = [*package[: len(package) - node.level + 1], *(node.module.split(".") if node.module else [])]
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith(f"quadpilot.{train.name}"):
+                mod, names = node.module.split(".")[2:], [a.name for a in node.names]
+            elif isinstance(node, ast.Import):
+                mods = [a.name.split(".")[2:] for a in node.names if a.name.startswith(f"quadpilot.{train.name}.")]
+                found += [(f"{rel}:{node.lineno}", part, m[0]) for m in mods]
+                continue
+            else:
+                continue
+            targets = [mod[0]] if mod else names  # `from .. import cli` names the part itself
+            found += [(f"{rel}:{node.lineno}", part, t) for t in targets if t != part]
+    return found
+
+
+def upward_imports(train: Path, floors: dict[str, int]) -> list[str]:
+    """The imports inside `train` to a higher floor, and the parts the floor table does not place."""
+    bad = []
+    for where, part, target in train_imports(train):
+        if part not in floors or target not in floors:
+            bad.append(f"{where}: {part} → {target}: not in the floor table")
+        elif floors[target] > floors[part]:
+            bad.append(f"{where}: {part} (floor {floors[part]}) imports {target} (floor {floors[target]})")
+    return bad
+
+
+def test_the_floor_table_places_every_part_of_train():
+    train = SRC / "train"
+    parts = {p.name.removesuffix(".py") for p in train.iterdir() if p.suffix == ".py" or (p / "__init__.py").exists()}
+    assert set(train_floors()) == parts - {"__init__"}
+
+
+def test_imports_inside_train_go_down_or_sideways():
+    bad = upward_imports(SRC / "train", train_floors())
+    assert not bad, "imports docs/architecture.md's floors of train do not allow:\n" + "\n".join(bad)
+
+
+def test_floor_check_finds_planted_ones(tmp_path):
+    train = tmp_path / "train"
+    for folder in ("envs", "runs", "ppo"):
+        (train / folder).mkdir(parents=True)
+        (train / folder / "__init__.py").write_text("")
+    (train / "cli.py").write_text("from .runs import loop\nfrom .ppo import PPO\n")
+    (train / "envs" / "batch.py").write_text("import numpy\n")
+    (train / "ppo" / "__init__.py").write_text("from ..runs import trainer\nfrom . import config\n")
+    (train / "runs" / "loop.py").write_text(
+        "from ..envs import batch\n\n\ndef train():\n    from ..ppo import PPO\n    import quadpilot.train.cli\n"
+    )
+    (train / "runs" / "checkpoint.py").write_text(
+        "from quadpilot.train import ppo\nfrom quadpilot.train.sac import SAC\n"
+    )
+    floors = {"cli": 3, "ppo": 2, "runs": 1, "envs": 0}
+    assert upward_imports(train, floors) == [
+        "runs/checkpoint.py:1: runs (floor 1) imports ppo (floor 2)",
+        "runs/checkpoint.py:2: runs → sac: not in the floor table",
+        "runs/loop.py:5: runs (floor 1) imports ppo (floor 2)",
+        "runs/loop.py:6: runs (floor 1) imports cli (floor 3)",
+    ]

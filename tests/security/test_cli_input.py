@@ -35,7 +35,8 @@ import torch
 from quadpilot.export.onnx_export import supported_opsets
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
-from quadpilot.train.runs.checkpoint import LATEST, checkpoint_dict, policy_checkpoint_dict
+from quadpilot.train.ppo.checkpoint import policy_checkpoint_dict
+from quadpilot.train.runs.checkpoint import LATEST, checkpoint_dict
 from quadpilot.train.runs.runlog import LOCK
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,7 +57,7 @@ PRELOAD = [
     *("torch", "torch._dynamo", "onnx", "onnxruntime", "gymnasium", "rich.progress", "matplotlib.backends.backend_agg"),
     *(
         "quadpilot.train." + m
-        for m in ("ppo", "runs.checkpoint", "envs", "curriculum", "evaluate", "runs.runlog", "sac")
+        for m in ("ppo", "runs.checkpoint", "envs", "envs.curriculum", "envs.evaluate", "runs.runlog", "sac")
     ),
     *("quadpilot.export.onnx_export", "quadpilot.export.c_export", "quadpilot.simulator", "quadpilot.viz"),
     *("quadpilot.runtime", "quadpilot.autopilot.node", "quadpilot.link.tlog", "quadpilot.core.mission"),

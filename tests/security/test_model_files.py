@@ -153,7 +153,7 @@ def exported_elu_mlp(tmp_path_factory):
     from quadpilot.export.onnx_export import export_onnx
     from quadpilot.train.envs import make_config
     from quadpilot.train.ppo import PPOConfig
-    from quadpilot.train.runs.checkpoint import save_untrained_policy
+    from quadpilot.train.ppo.checkpoint import save_untrained_policy
 
     d = tmp_path_factory.mktemp("variant")
     cfg = PPOConfig(activation="elu", actor_hidden=(32, 32, 16), normalize_obs=True)

@@ -27,8 +27,8 @@ from quadpilot.studies.robustness import (
     scenario_table,
     summarise,
 )
-from quadpilot.train.evaluate import evaluate
-from quadpilot.train.runs.checkpoint import load_policy
+from quadpilot.train.algorithms import load_policy
+from quadpilot.train.envs.evaluate import evaluate
 
 HOVER = Path(__file__).parents[2] / "models" / "hover" / "policy.pt"
 M = SEED_VEHICLE.mass

@@ -53,7 +53,7 @@ MAX_POSITION_ERROR_M = 0.5
 MAX_VELOCITY_ERROR_M_S = 1.0
 """mc_raptor.hpp `max_velocity_error`."""
 STUDENT_SCHEMA = "quadpilot.px4-raptor/1"
-"""The schema of the checkpoint `quad-train --contract px4-raptor` writes (`train.raptor_distill`):
+"""The schema of the checkpoint `quad-train --contract px4-raptor` writes (`train.raptor.distill`):
 torch tensors to export with `quad-export --format px4-raptor`, not a file anything flies."""
 TRAINING_RATE_HZ = 100
 """mc_raptor.hpp POLICY_CONTROL_FREQUENCY_TRAINING: the rate the GRU state advances at."""

@@ -33,9 +33,9 @@ from quadpilot.atomic_files import atomic_write
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
 from quadpilot.core.state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
+from quadpilot.train.algorithms import CheckpointError, load_checkpoint, trained_policy
 from quadpilot.train.envs import QuadBatch
-from quadpilot.train.runs.checkpoint import CheckpointError, TrainedPolicy
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.runs.checkpoint import TrainedPolicy
 
 ONNX_SCHEMA = "quadpilot.onnx/1"
 INPUT, OUTPUT = "obs", "action"
@@ -362,7 +362,7 @@ def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: in
     check_opset(opset)
     checkpoint, out = Path(checkpoint), Path(out)
     ckpt = load_checkpoint(checkpoint)
-    policy = TrainedPolicy(ckpt, str(checkpoint))
+    policy = trained_policy(ckpt, str(checkpoint))
     module = deployable(policy)
     dim = policy.layout.dim
     batch = torch.export.Dim("batch")
@@ -436,7 +436,7 @@ def check_parity(
 
     from quadpilot.runtime.backends import load_policy as load_runtime_policy
 
-    policy = TrainedPolicy(load_checkpoint(checkpoint), str(checkpoint))
+    policy = trained_policy(load_checkpoint(checkpoint), str(checkpoint))
     module = deployable(policy)
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1

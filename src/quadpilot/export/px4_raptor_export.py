@@ -36,7 +36,7 @@ from quadpilot.core.vehicle_file import vehicle_to_toml
 from quadpilot.runtime import gru, rltools_tar
 from quadpilot.runtime.raptor import VEHICLE_BESIDE
 from quadpilot.train.envs import EnvConfig
-from quadpilot.train.raptor_distill import StudentCheckpointError, fly, load_student, numpy_policy
+from quadpilot.train.raptor.distill import StudentCheckpointError, fly, load_student, numpy_policy
 
 EXAMPLE_SEED = 2025
 """Seed of the two flights the example is taken from."""

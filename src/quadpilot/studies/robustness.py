@@ -5,7 +5,7 @@ controller (`runtime.fallback.FallbackController`, which acts on the same observ
 
 - the grid: perturbed plants (mass, thrust constant k_f, wind; `core.randomization`), 100 hover
   episodes per cell from the hover bar's starts, judged by `core.mission`'s success definition;
-  policies through `train.evaluate.evaluate`, the fallback through `fly` (checked equal to
+  policies through `train.envs.evaluate.evaluate`, the fallback through `fly` (checked equal to
   `evaluate` for a policy by a test);
 - the same grid through `quad-sitl` (`--mass-scale`, `--motor-scale`, `--wind`), for ONNX files;
 - disturbance scenarios on the nominal plant, starting at rest on the target: a 1 N push for
@@ -246,9 +246,9 @@ def hover_config(vehicle: str | VehicleParams = "seed", dtype: str = "float32") 
 
 def evaluate_grid(controller, cfg: EnvConfig, cells: list[Cell], episodes: int = 100, seed: int = 12345) -> list[dict]:
     """Success and position error of `controller` on each cell, `episodes` episodes each, the
-    same starts in every cell. Policies go through `train.evaluate.evaluate`, the rest through
+    same starts in every cell. Policies go through `train.envs.evaluate.evaluate`, the rest through
     `fly`."""
-    from quadpilot.train.evaluate import evaluate
+    from quadpilot.train.envs.evaluate import evaluate
 
     out = []
     for cell in cells:
@@ -472,7 +472,7 @@ def scenario_table(rows: list[dict]) -> str:
 def write_model_eval(eval_path: Path, name: str, report: dict, policy) -> dict:
     """Add this harness's results for policy `name` to a shipped model's eval.json (models/README):
     `nominal` (100 episodes on the nominal plant, `evaluate`), `grid_in_process` and `sitl`."""
-    from quadpilot.train.evaluate import evaluate
+    from quadpilot.train.envs.evaluate import evaluate
 
     data = json.loads(Path(eval_path).read_text())
     data["nominal"] = evaluate(policy, dataclasses.replace(policy.env_config, randomization=None), episodes=100)
@@ -519,7 +519,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _study(args) -> int:
-    from quadpilot.train.runs.checkpoint import CheckpointError, load_policy
+    from quadpilot.train.algorithms import load_policy
+    from quadpilot.train.runs.checkpoint import CheckpointError
 
     controllers = []
     onnx = {}

@@ -1,5 +1,5 @@
 """The files of a training run other than checkpoints: metrics.csv, JSON files, the run
-directory's lock (curves.png, drawn from metrics.csv, is `train.plotting`'s). Every file of a run
+directory's lock (curves.png, drawn from metrics.csv, is `train.runs.plotting`'s). Every file of a run
 (checkpoints, replay chunks and snapshots too) is written whole or not at all by
 `atomic_files.atomic_write`.
 

@@ -1,7 +1,7 @@
 """quad-train's flags as configurations, for every algorithm: the trainer's configuration (the
 size and seed flags, PPO's preset, --set NAME=VALUE), the environment (--vehicle, --randomize,
 --sensor-noise, --motor-tau) and, on --resume, what the flags ask that the checkpoint's run differs
-in. The run loop (`runs.loop`) calls these; the parser is `cli`'s.
+in. The run loop (`loop`) calls these with the algorithm's Trainer class; the parser is `train.cli`'s.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def upper_bounds() -> dict[str, int]:
     """The largest value of each SIZE_OPTIONS flag: the sizes a checkpoint may describe
     (`checks`), so that a run's own file is never refused, and 64 bits for the seed
     (torch.manual_seed)."""
-    from .runs.checks import MAX_BATCH, MAX_ENVS, MAX_OBS_HISTORY, MAX_THREADS
+    from .checks import MAX_BATCH, MAX_ENVS, MAX_OBS_HISTORY, MAX_THREADS
 
     sizes = {"num_envs": MAX_ENVS, "rollout_steps": MAX_BATCH, "minibatch_size": MAX_BATCH, "bptt_steps": MAX_BATCH}
     return {**sizes, "threads": MAX_THREADS, "obs_history": MAX_OBS_HISTORY, "seed": 2**63 - 1, "total_steps": 2**62}
@@ -98,10 +98,9 @@ def explicit_options(args, algo) -> dict[str, Any]:
 def make_config(algo, explicit: dict, preset: str | None):
     """The configuration of a fresh run: PPO's preset (default fast) under the explicit options;
     SAC's defaults under them. UsageError naming a value the configuration refuses."""
-    from .ppo import PRESETS
-    from .runs.checks import check_sizes
+    from .checks import check_sizes
 
-    base = PRESETS[preset or "fast"] if algo.algo == "ppo" else {}
+    base = algo.preset_values(preset)
     try:
         cfg = algo.Config(**{**base, **explicit})
     except ValueError as e:
@@ -128,7 +127,7 @@ def resolve_vehicle_arg(args) -> None:
         args.vehicle = params
 
 
-def _vehicle(args):
+def chosen_vehicle(args):
     """The VehicleParams --vehicle names (seed without it)."""
     from quadpilot.core.params import VehicleParams
     from quadpilot.core.vehicle_file import get_preset
@@ -144,7 +143,7 @@ def _sensor_preset(args) -> str:
 
     if args.sensor_noise != "vehicle":
         return args.sensor_noise
-    name = _vehicle(args).name
+    name = chosen_vehicle(args).name
     if name not in SENSOR_NOISE_PRESETS:
         raise UsageError(
             f"--sensor-noise: no sensor model for vehicle {name!r}; name one: --sensor-noise "
@@ -179,7 +178,7 @@ def env_kwargs(args) -> dict:
         kw["sensor_noise"] = _sensor_preset(args)
     if args.motor_tau is not None:
         check_motor_tau(args)
-        kw["vehicle"] = dataclasses.replace(_vehicle(args), motor_tau=args.motor_tau)
+        kw["vehicle"] = dataclasses.replace(chosen_vehicle(args), motor_tau=args.motor_tau)
     if getattr(args, "init_rotor", None):
         kw["init_rotor"] = args.init_rotor
     if getattr(args, "obs_version", None):

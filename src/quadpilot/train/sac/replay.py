@@ -20,7 +20,7 @@ import torch
 from quadpilot.atomic_files import atomic_write
 from quadpilot.core.params import NUM_MOTORS
 
-from .runs.checks import CheckpointError, load_weights_only
+from ..runs.checks import CheckpointError, load_weights_only
 
 ACT_DIM = NUM_MOTORS  # the action is one command a rotor
 REPLAY_DIR = "replay"

@@ -5,8 +5,8 @@ that a policy for that file inherits what the generalist learned over thousands 
 recurrent adaptation, its tracking) and spends minutes, not an hour, on the file. Any PPO policy
 of the same observation layout may be the start: its network's shape (architecture, widths,
 activation, history, normalisation) is taken over unless a flag names another, which is refused;
-its action head is put into the new vehicle's rotor order (`train.retarget.rotor_permutation`,
-one rotor per corner) and given the new vehicle's hover trim (`train.retarget.vehicle_model`: the
+its action head is put into the new vehicle's rotor order (`train.ppo.retarget.rotor_permutation`,
+one rotor per corner) and given the new vehicle's hover trim (`train.ppo.retarget.vehicle_model`: the
 asymmetric frame's unequal thrusts, none for a square frame); its observation statistics come with
 it. The optimiser, the learning-rate schedule, the step count and the seed are the new run's. The
 run's config.json records the file and its checksum (`init_from`); a resumed run continues from its
@@ -24,12 +24,12 @@ NETWORK_KEYS = ("arch", "lstm_hidden", "actor_hidden", "critic_hidden", "activat
 """PPOConfig's fields that shape the network (and what it is fed): the new run takes the file's."""
 
 
-def load_source(path: str) -> dict:
+def load_source(path: str, algorithms: dict) -> dict:
     """The checked checkpoint --init-from names (CheckpointError, exit 1, for a bad file); quad-train
     has refused --init-from for any --algo but ppo before."""
-    from .checkpoint_read import load_checkpoint
+    from ..runs.checkpoint_read import load_checkpoint
 
-    ckpt = load_checkpoint(path)
+    ckpt = load_checkpoint(path, algorithms)
     if ckpt.get("algo", "ppo") != "ppo":
         raise UsageError(f"--init-from {path}: a {ckpt['algo']} policy; it starts PPO runs from PPO policies")
     return ckpt
@@ -62,8 +62,8 @@ def start_from(agent, ckpt: dict, source: str) -> dict:
     from quadpilot.core.params import unit_layout
 
     from ..envs import EnvConfig
-    from ..ppo import rms_state
-    from ..retarget import RetargetError, rotor_permutation, vehicle_model
+    from ..runs.checks import rms_state
+    from .retarget import RetargetError, rotor_permutation, vehicle_model
 
     theirs = EnvConfig.from_json(ckpt["env_config"])
     if ckpt["obs_layout"]["name"] != agent.env_cfg.layout.name:

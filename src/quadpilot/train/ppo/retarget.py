@@ -21,7 +21,7 @@ the file's trim where the policy's a_i = 0 holds a square frame's.
 `quad-export --vehicle FILE` calls it and writes the result beside the ONNX file (`<name>.pt`), so
 the source checksum the ONNX metadata records belongs to a file that exists. `quad-train --init-from`
 starts a run from such a policy's weights in its vehicle's rotor order, with its trim
-(`vehicle_model`, `runs.init_from`).
+(`vehicle_model`, `init_from`).
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ def retarget_checkpoint(ckpt: dict, vehicle: VehicleParams, source: str = "polic
     """A copy of the checkpoint `ckpt` (a loaded policy.pt) that flies `vehicle`: its environment is
     `vehicle` without randomisation, its action head permuted into the vehicle's rotor order and its
     bias offset by the vehicle's hover trim (`hover_trim`) where the layout is not balanced."""
-    from quadpilot.train.envs import EnvConfig
+    from ..envs import EnvConfig
 
     env = EnvConfig.from_json(ckpt["env_config"])
     if env.randomization is None or not env.randomization.airframes:

@@ -15,12 +15,12 @@ Each variant is its own class with one straight path, below the shared base clas
   gradient written out, the gradient clip and Adam). What runs by default (`update="auto"` picks it
   for arch mlp).
 - `TorchPPO`: the same rollout with torch's forward passes, and the loss in torch
-  with autograd and torch.optim.Adam (`ppo_loss`): the reference the NumPy update is checked
+  with autograd and torch.optim.Adam (`loss`): the reference the NumPy update is checked
   against (`update="torch"`).
-- `RecurrentPPO`: an LSTM actor-critic trained on sequences (`recurrent_ppo`; arch lstm), the torch loss.
+- `RecurrentPPO`: an LSTM actor-critic trained on sequences (`recurrent`; arch lstm), the torch loss.
 
 `PPO(cfg, env_cfg)` builds the variant the configuration names (`variant`); `PPOConfig` and the
-presets are `ppo_config`'s. The shared pieces are here (construction, the update loop over
+presets are `config`'s. The shared pieces are here (construction, the update loop over
 epochs and minibatches, the bootstrap and GAE at the end of a rollout, the checkpoint entries), in
 `rollout` (buffers, minibatch indices, health metrics) and in `gae`. Health metrics come back as a
 dict under fixed names (docs/architecture.md style rule 5); the run loop (`runs.loop`) decides
@@ -39,19 +39,18 @@ import torch
 
 from quadpilot.core.normalize import RunningMeanStd
 
-from . import plotting
-from .envs import EnvConfig, QuadVectorEnv
+from ..envs import EnvConfig, QuadVectorEnv
+from ..envs.history import HistoryVectorEnv, network_input_dim
+from ..networks import ActorCritic, RecurrentActorCritic, build_actor_critic
+from ..networks.actor import DeterministicActor
+from ..runs import plotting, runlog, trainer
+from ..runs.checks import rms_state, tensor
+from .config import PRESETS, UPDATE_PATHS, PPOConfig
 from .gae import bootstrapped_gae
-from .history import HistoryVectorEnv, network_input_dim
-from .networks import ActorCritic, RecurrentActorCritic, build_actor_critic
+from .loss import gradient_step
 from .numpy_ppo import LOG_SQRT_2PI, NumpyPPO
-from .policy_actor import DeterministicActor
-from .ppo_config import PRESETS, UPDATE_PATHS, PPOConfig
-from .ppo_loss import gradient_step
-from .recurrent_ppo import STATE_KEYS, finite_sequences, forward, initial_rollout_state, to_sequences
+from .recurrent import STATE_KEYS, finite_sequences, forward, initial_rollout_state, to_sequences
 from .rollout import RolloutBuffer, UpdateStats, minibatches
-from .runs import runlog, trainer
-from .runs.checks import rms_state, tensor
 
 __all__ = [
     "PPO",
@@ -79,6 +78,7 @@ class PPO(trainer.Trainer):
 
     algo = "ppo"
     unit = "update"
+    default_preset = "fast"
     Config = PPOConfig
     columns = runlog.COLUMNS
     run_keys = (
@@ -261,8 +261,33 @@ class PPO(trainer.Trainer):
     def act_deterministic(self) -> DeterministicActor:
         """The deterministic policy on raw observations (N, obs_dim): what evaluation and export
         use. For an MLP a callable, `ppo.act_deterministic(obs)` → mean actions (N, 4); for an LSTM
-        or an observation history, `initial_state(n)` and `step(obs, state)` (`evaluate` takes both)."""
+        or an observation history, `initial_state(n)` and `step(obs, state)` (`envs.evaluate` takes both)."""
         return DeterministicActor(self.model, self._norm, self.env_cfg.layout.dim, self.cfg.obs_history)
+
+    @classmethod
+    def preset_values(cls, preset: str | None) -> dict:
+        return PRESETS[preset or "fast"]
+
+    @classmethod
+    def init_from(cls, path: str, explicit: dict, algorithms: dict) -> tuple[dict, dict]:
+        from . import init_from
+
+        source = init_from.load_source(path, algorithms)
+        return source, init_from.network_options(source, explicit, path)
+
+    def start_from(self, ckpt: dict, source: str) -> dict:
+        from .init_from import start_from
+
+        return start_from(self, ckpt, source)
+
+    @classmethod
+    def policy_settings(cls, ckpt: dict) -> tuple[PPOConfig, bool, int]:
+        cfg = PPOConfig.from_json(ckpt["ppo_config"])
+        return cfg, bool(cfg.normalize_obs), int(cfg.obs_history)
+
+    @classmethod
+    def policy_network(cls, ckpt: dict, obs_dim: int, cfg: PPOConfig) -> tuple[torch.nn.Module, PPOConfig]:
+        return build_actor_critic(network_input_dim(obs_dim, cfg), 4, cfg).eval(), cfg
 
 
 # === the variants: FeedForwardPPO (NumPy update, the default), TorchPPO (the reference), RecurrentPPO
@@ -343,7 +368,7 @@ class FeedForwardPPO(PPO):
 
 class TorchPPO(FeedForwardPPO):
     """PPO for an MLP with torch's forward passes and the loss in torch with autograd and
-    torch.optim.Adam (`ppo_loss.gradient_step`), `update="torch"`: the reference, equal to the NumPy
+    torch.optim.Adam (`loss.gradient_step`), `update="torch"`: the reference, equal to the NumPy
     step to float32 rounding (tests/train/test_numpy_ppo.py). The rollout is `FeedForwardPPO`'s."""
 
     def _build_update(self) -> None:
@@ -375,7 +400,7 @@ class TorchPPO(FeedForwardPPO):
 class RecurrentPPO(PPO):
     """PPO for an LSTM actor-critic (arch lstm, update torch): the rollout carries each drone's LSTM
     states and is cut into sequences; the update replays whole sequences from their stored states
-    (`recurrent_ppo`'s docstring has the details), with the torch loss (`ppo_loss`)."""
+    (`recurrent`'s docstring has the details), with the torch loss (`loss`)."""
 
     recurrent = True
 

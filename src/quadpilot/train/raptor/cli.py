@@ -1,6 +1,6 @@
 """`quad-train --task hover --contract px4-raptor [--vehicle NAME|FILE] [--teacher FILE] --out DIR`:
 find or train the teacher, then distill it into the policy PX4's mc_raptor loads
-(`raptor_distill`). The run directory gets config.json (with the command and the wall time from start
+(`distill`). The run directory gets config.json (with the command and the wall time from start
 to the student's evaluation), and, when no teacher was given or shipped, the teacher's own run in
 DIR/teacher."""
 
@@ -15,8 +15,8 @@ from pathlib import Path
 
 from quadpilot.console import UsageError
 
-from .options import _vehicle
-from .raptor_distill import CONTRACT, DistillConfig, check_teacher_env, distill
+from ..runs.options import chosen_vehicle
+from .distill import CONTRACT, DistillConfig, check_teacher_env, distill
 
 CONTRACTS = (CONTRACT,)
 TEACHER_DIR = "teacher"
@@ -67,7 +67,7 @@ def distill_config(args, episode_steps: int, sizes: bool = True) -> DistillConfi
     """--seed, --num-envs (drones per iteration), --total-steps (simulated steps in all: iterations of
     num_envs episodes) and --set NAME=VALUE (a DistillConfig field) as the distillation's settings.
     sizes=False: --num-envs and --total-steps were the teacher's PPO run's, not the distillation's."""
-    from .options import parse_overrides
+    from ..runs.options import parse_overrides
 
     values = parse_overrides(args.set, DistillConfig, CONTRACT) if sizes else {}
     for flag, name in (("seed", "seed"), ("num_envs", "num_envs")):
@@ -128,23 +128,25 @@ def _remove_if_empty(out: Path, top: Path | None) -> None:
             return
 
 
-def train_from_cli(args, argv: list[str]) -> int:
-    from .runs.checkpoint import load_policy
-    from .runs.loop import Progress, train
+def train_from_cli(args, argv: list[str], algorithms: dict) -> int:
+    """quad-train --algo raptor: a PPO teacher (shipped, given or trained here with `algorithms`, the
+    registry `train.cli` hands down), then its distilled student."""
+    from ..runs.checkpoint import load_policy
+    from ..runs.loop import Progress, train
 
     check(args)
     start = time.perf_counter()
     try:  # the frame first: a teacher trained for a frame the contract cannot fly is time lost
         from quadpilot.core.px4_raptor import policy_order
 
-        policy_order(_vehicle(args))
+        policy_order(chosen_vehicle(args))
     except ValueError as e:
         raise UsageError(f"--vehicle: {e}") from None
     import torch
 
     # one thread unless told: the GRU's small products gain nothing from more, and lose much to a busy CPU
     torch.set_num_threads(args.threads or 1)
-    vehicle = _vehicle(args)
+    vehicle = chosen_vehicle(args)
     out = Path(args.out or f"runs/hover-px4-raptor-{vehicle.name}")
     # every refusal of the command comes before the run directory is made: none is left empty behind
     if args.teacher is not None:
@@ -157,7 +159,7 @@ def train_from_cli(args, argv: list[str]) -> int:
         teacher_path, how = out / TEACHER_DIR / "policy.pt", "trained"
         shown = str(teacher_path)
     if how != "trained":
-        teacher = _teacher(load_policy(teacher_path), teacher_path, vehicle)
+        teacher = _teacher(load_policy(teacher_path, algorithms), teacher_path, vehicle)
         dc = distill_config(args, teacher.env_config.episode_steps)
         out.mkdir(parents=True, exist_ok=True)
     else:
@@ -169,13 +171,13 @@ def train_from_cli(args, argv: list[str]) -> int:
         print(f"quad-train: no shipped teacher flies {vehicle.name}: training one first in {teacher_args.out}")
         status = None
         try:
-            status = train(teacher_args, argv)
+            status = train(teacher_args, argv, algorithms)
         finally:
             if status != 0:  # refused (or failed) before the teacher's run wrote anything: no empty folder
                 _remove_if_empty(out, made)
         if status != 0:
             return status
-        teacher = _teacher(load_policy(teacher_path), teacher_path, vehicle)
+        teacher = _teacher(load_policy(teacher_path, algorithms), teacher_path, vehicle)
         dc = distill_config(args, teacher.env_config.episode_steps, sizes=False)  # the sizes were the teacher's
     cfg = teacher.env_config
     label = f"quad-train hover ({CONTRACT})"

@@ -1,5 +1,5 @@
 """`quad-train --task hover --contract px4-raptor`: a policy of exactly the shape PX4's mc_raptor is
-compiled for (`raptor_student.RaptorStudent`: dense 22→16, GRU 16, dense 16→4), distilled from a
+compiled for (`student.RaptorStudent`: dense 22→16, GRU 16, dense 16→4), distilled from a
 trained MLP hover policy of the same vehicle by DAgger (Ross, Gordon and Bagnell 2011, "A Reduction of
 Imitation Learning and Structured Prediction to No-Regret Online Learning"), the way RAPTOR's own
 foundation policy was made from expert policies (Eschmann et al. 2025, arXiv 2509.11481, Sec. IV).
@@ -40,8 +40,8 @@ from quadpilot.core import px4_raptor
 from quadpilot.core.mission import window_success, yaw_errors
 from quadpilot.core.state import POS, YAW
 
-from .envs import EnvConfig, QuadBatch
-from .raptor_student import RaptorStudent
+from ..envs import EnvConfig, QuadBatch
+from .student import RaptorStudent
 
 SCHEMA = px4_raptor.STUDENT_SCHEMA
 CONTRACT = "px4-raptor"
@@ -215,7 +215,7 @@ class StudentCheckpointError(ValueError):
 
 def load_student(path) -> tuple[RaptorStudent, dict]:
     """The student and the checkpoint dict of a px4-raptor policy.pt; StudentCheckpointError if not one."""
-    from .runs.checks import CheckpointError, load_weights_only
+    from ..runs.checks import CheckpointError, load_weights_only
 
     try:
         ckpt = load_weights_only(path)  # tensors and plain data only: nothing in the file runs
@@ -243,7 +243,7 @@ def load_student(path) -> tuple[RaptorStudent, dict]:
 
 def is_student_checkpoint(path) -> bool:
     """True if `path` is a px4-raptor policy.pt (read with weights_only; False for anything else)."""
-    from .runs.checks import CheckpointError, load_weights_only
+    from ..runs.checks import CheckpointError, load_weights_only
 
     try:
         ckpt = load_weights_only(path)

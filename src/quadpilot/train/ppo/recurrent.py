@@ -19,7 +19,7 @@ What changes against the feed-forward PPO (the objective, GAE and the health met
 - **Minibatches over whole drones.** A minibatch is a set of whole sequences
   (`minibatch_size // L` of them), shuffled each epoch; the losses average over their L·B steps.
 
-The update is the torch loss of the feed-forward reference (`ppo_loss.gradient_step`) on the
+The update is the torch loss of the feed-forward reference (`loss.gradient_step`) on the
 replayed sequences, inside the loop every variant shares (`ppo.PPO.update`).
 """
 

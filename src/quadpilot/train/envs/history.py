@@ -73,7 +73,7 @@ class HistoryVectorEnv:
     """`QuadVectorEnv` with observations replaced by the stacked history (same-step autoreset kept:
     `infos["final_obs"]` holds the stacked final observation of the drones whose episode ended).
 
-    Forwards what PPO and checkpoints use of the inner environment (`batch`, `_rng`, `_started`,
+    Forwards what PPO and checkpoints use of the inner environment (`batch`, `rng`, `started`,
     `cfg`, `num_envs`, `set_target_radius`)."""
 
     def __init__(self, env, k: int) -> None:
@@ -82,10 +82,10 @@ class HistoryVectorEnv:
         self.cfg = env.cfg
         self.history = History(env.num_envs, env.cfg.layout.dim, k)
 
-    # forwarded state (load_ppo_state writes _rng and _started)
+    # forwarded state (a resumed trainer writes rng and started)
     batch = property(lambda self: self.env.batch)
-    _rng = property(lambda self: self.env._rng, lambda self, v: setattr(self.env, "_rng", v))
-    _started = property(lambda self: self.env._started, lambda self, v: setattr(self.env, "_started", v))
+    rng = property(lambda self: self.env.rng, lambda self, v: setattr(self.env, "rng", v))
+    started = property(lambda self: self.env.started, lambda self, v: setattr(self.env, "started", v))
 
     def set_target_radius(self, radius: float) -> None:
         self.env.set_target_radius(radius)

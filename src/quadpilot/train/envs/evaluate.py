@@ -31,7 +31,7 @@ from quadpilot.core.mission import (
 )
 from quadpilot.core.state import POS, YAW
 
-from .envs import EnvConfig, QuadBatch
+from . import EnvConfig, QuadBatch
 
 Policy = Callable[[np.ndarray], np.ndarray]
 

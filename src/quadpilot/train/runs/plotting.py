@@ -15,7 +15,7 @@ import numpy as np
 
 from quadpilot.atomic_files import atomic_write
 
-from .runs.runlog import COLUMNS, read_metrics
+from .runlog import COLUMNS, read_metrics
 
 PANELS = (("ep_return", "episode return"), ("ep_length", "episode length (steps)"), ("success_rate", "success"))
 """curves.png's panels by default (PPO's): (column, axis label[, log scale[, (column, label) on a second axis]])."""

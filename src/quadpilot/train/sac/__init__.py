@@ -36,7 +36,7 @@ minibatch 256, γ 0.99 and a critic step every 10 environment steps (0.1 per tra
 
 One row of metrics.csv is one *iteration*: `rollout_steps` vector steps with their gradient steps;
 --eval-every, --checkpoint-every and --snapshot-every count iterations. The run loop, the
-environment options and the checkpoint layout are every algorithm's (`runs.loop`, `options`, `runs.trainer`);
+environment options and the checkpoint layout are every algorithm's (`runs.loop`, `runs.options`, `runs.trainer`);
 what SAC adds to a checkpoint is its critics, temperature and replay count, and beside it the
 replay buffer's chunks (`replay`), so a save costs what was added, not the whole buffer.
 """
@@ -56,12 +56,11 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from . import plotting
-from .envs import EnvConfig, QuadVectorEnv
-from .networks import ACTIVATIONS, mlp
+from ..envs import EnvConfig, QuadVectorEnv
+from ..networks import ACTIVATIONS, mlp
+from ..runs import plotting, trainer
+from ..runs.checks import CheckpointError, check_count, check_tensor, check_weights, short
 from .replay import ACT_DIM, REPLAY_DIR, ReplayBuffer, load_replay, prune_replay, save_replay_chunk
-from .runs import trainer
-from .runs.checks import CheckpointError, check_count, check_tensor, check_weights, short
 
 LOG2 = math.log(2.0)
 HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -280,7 +279,8 @@ class TwinQ(nn.Module):
 
 
 def build_actor(obs_dim: int, cfg: SACConfig) -> SquashedGaussianActor:
-    """The actor a SACConfig describes (also what `checkpoint.TrainedPolicy` builds for export)."""
+    """The actor a SACConfig describes (also what `runs.checkpoint.TrainedPolicy` builds for export,
+    through `SAC.policy_network`)."""
     return SquashedGaussianActor(
         obs_dim, ACT_DIM, cfg.actor_hidden, cfg.activation, cfg.init_log_std, (cfg.log_std_min, cfg.log_std_max)
     )
@@ -313,7 +313,7 @@ PANELS = (
     *(("ep_return", "episode return"), ("success_rate", "success"), ("q_loss", "critic loss", True)),
     ("alpha", "temperature α", True, ("entropy", "entropy (nats)")),
 )
-"""curves.png's panels (`plotting.plot_curves`)."""
+"""curves.png's panels (`runs.plotting.plot_curves`)."""
 
 
 # --- the trainer ----------------------------------------------------------------------------
@@ -322,7 +322,7 @@ PANELS = (
 class SAC(trainer.Trainer):
     """The trainer: vector environment, actor, twin critics and their targets, temperature,
     optimisers, replay buffer and RNGs. `iterate()` runs one iteration and returns its metrics;
-    `trainer.Trainer` has what it shares with PPO (the episode log, the checkpoint layout, the files)."""
+    `runs.trainer.Trainer` has what it shares with PPO (the episode log, the checkpoint layout, the files)."""
 
     algo = "sac"
     unit = "iteration"
@@ -559,6 +559,12 @@ class SAC(trainer.Trainer):
 
     def run_entries(self) -> dict:
         return {"sac": self.cfg.to_json(), "update_to_data": self.cfg.update_to_data}
+
+    @classmethod
+    def policy_network(cls, ckpt: dict, obs_dim: int, cfg=None) -> tuple[SquashedGaussianActor, SACConfig]:
+        """The actor (tanh of its mean is the action) on raw observations."""
+        cfg = SACConfig.from_json(ckpt["sac_config"])
+        return build_actor(obs_dim, cfg).eval(), cfg
 
     def plot_curves(self, metrics_path, out_path, title: str, radii: tuple[float, ...] = ()) -> Path:
         """curves.png: return, success (training and evaluation), critic loss, α and entropy."""

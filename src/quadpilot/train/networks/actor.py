@@ -1,8 +1,8 @@
 """The deterministic policy of a trained network, stateful or not: what evaluation, export and a
-loaded checkpoint use (`ppo.PPO.act_deterministic`, `checkpoint.TrainedPolicy`).
+loaded checkpoint use (`ppo.PPO.act_deterministic`, `runs.checkpoint.TrainedPolicy`).
 
 A stateless callable for an MLP, `initial_state(n)` / `step(obs, state)` for an LSTM or an
-observation history (`history`).
+observation history (`envs.history`).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .history import History
+from ..envs.history import History
 
 
 class _HistoryState:

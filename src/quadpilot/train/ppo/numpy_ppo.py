@@ -32,7 +32,7 @@ import torch
 from threadpoolctl import ThreadpoolController
 from torch import nn
 
-from .networks import ActorCritic
+from ..networks import ActorCritic
 
 ACTIVATION_NAMES = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu"}
 LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))  # as torch.distributions.Normal.log_prob writes it

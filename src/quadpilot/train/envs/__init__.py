@@ -1,6 +1,6 @@
 """Gymnasium environments for hover, waypoint and circle tasks, single and batched.
 
-One engine, `QuadBatch` (`train.batch`, re-exported here), owns N drones: sampling initial states,
+One engine, `QuadBatch` (`train.envs.batch`, re-exported here), owns N drones: sampling initial states,
 stepping the `core` dynamics, building observations as `core.build_observation` does, and computing
 rewards and terminations with `core.reward`, in place. `QuadEnv` is a `gymnasium.Env` over one
 drone; `QuadVectorEnv` is a `gymnasium.vector.VectorEnv` over N drones with masked same-step
@@ -274,15 +274,15 @@ class QuadVectorEnv(VectorEnv):
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
         self.batch = QuadBatch(self.cfg, self.num_envs, params)
-        self._rng = np.random.default_rng()
-        self._started = False
+        self.rng = np.random.default_rng()
+        self.started = False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         if seed is not None:
-            self._rng = np.random.default_rng(seed)
+            self.rng = np.random.default_rng(seed)
             self.action_space.seed(seed)
-        self.batch.reset(np.ones(self.num_envs, bool), self._rng)
-        self._started = True
+        self.batch.reset(np.ones(self.num_envs, bool), self.rng)
+        self.started = True
         return self.batch.obs.copy(), {}
 
     def set_target_radius(self, radius: float) -> None:
@@ -290,14 +290,14 @@ class QuadVectorEnv(VectorEnv):
         self.batch.target_radius = float(radius)
 
     def step(self, actions):
-        if not self._started:
+        if not self.started:
             raise RuntimeError("call reset() before step()")
         actions = np.asarray(actions)
         if actions.shape != (self.num_envs, 4):
             raise ValueError(f"actions must have shape ({self.num_envs}, 4), got {actions.shape}")
         # step, then reset of the drones that ended (QuadBatch.step_autoreset: the batch's arrays,
         # copied out below, and the ended episodes' last observations, returns, lengths, success)
-        reward, term, trunc, done, ended = self.batch.step_autoreset(actions, self._rng)
+        reward, term, trunc, done, ended = self.batch.step_autoreset(actions, self.rng)
         infos: dict[str, Any] = {}
         if ended is not None:
             final_obs, ep_return, steps, success = ended

@@ -48,7 +48,7 @@ class PPOConfig:
     """Stop the epochs of an update early once approx_kl exceeds this (None: never)."""
     arch: str = "mlp"
     """Network: mlp (feed-forward actor and critic), or lstm (`RecurrentActorCritic`, one LSTM layer
-    of lstm_hidden units and a linear head each, trained on sequences: `recurrent_ppo`)."""
+    of lstm_hidden units and a linear head each, trained on sequences: `recurrent`)."""
     lstm_hidden: int = 64
     """LSTM width when arch is lstm."""
     bptt_steps: int = 0
@@ -57,7 +57,7 @@ class PPOConfig:
     minibatch_size // L whole sequences. 0: the whole rollout (L = rollout_steps)."""
     obs_history: int = 1
     """arch mlp: the network sees the last k observations and the k actions before them, stacked
-    (`history`); 1: the current observation only. Evaluated in-process; not exportable."""
+    (`envs.history`); 1: the current observation only. Evaluated in-process; not exportable."""
     actor_hidden: tuple[int, ...] = (64, 64)
     """Actor hidden layer widths."""
     critic_hidden: tuple[int, ...] = (64, 64)
