@@ -31,7 +31,7 @@ file's dynamics, `ROTORPY_FLIGHTS`, measured from RotorPy's ground truth.
 The generalist (`generalist OUT --policy generalist.pt --policies DIR`, after `run`): one recurrent
 policy trained once over drawn airframes (`GENERALIST_TRAIN`: quad-train --arch lstm --randomize
 airframes; `core.randomization.AIRFRAMES`), exported for each airframe with `quad-export --vehicle
-FILE` (its file's hover command and rotor order, nothing retrained; `train.retarget`) and flown on
+FILE` (its file's hover command and rotor order, nothing retrained; `train.ppo.retarget`) and flown on
 the same flights in both simulators, under each airframe's "generalist" and "rotorpy"/"generalist".
 
 `tuned` (`tuned OUT --policy generalist.pt --policies DIR`, after `run`): ours made the other way,

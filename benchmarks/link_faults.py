@@ -11,7 +11,7 @@ project's one hover rule, `core.mission.judge`: within 5 cm over the last 2 s, h
 a failsafe is never a success), the error, crashes, and what the node did: steps flown by the safety
 monitor's fallback, blind steps, failsafes (link loss), packets it dropped, and what the proxy did
 (`quad-sitl --link-impair`, `quadpilot.link.impair`) or which fault fired (`--sensor-fault`,
-`quadpilot.firmware_sim.faults`). A run whose process exits with anything but 0 or 1 (1: the flight
+`quadpilot.simulator.faults`). A run whose process exits with anything but 0 or 1 (1: the flight
 ended early, a failsafe), or prints a traceback, is a crash of ours and is recorded as one.
 
 The conditions: none; frame loss 1, 5, 10, 20 %; delay 10, 20, 50 ms (each direction); jitter

@@ -34,7 +34,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 QUAD_SITL = [sys.executable, "-m", "quadpilot.sitl", "--gcs", "none"]
-SIM_250 = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--rate", "250", "--episodes", "1"]
+SIM_250 = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--rate", "250", "--episodes", "1"]
 LAG_S = 0.03
 
 

@@ -1,7 +1,7 @@
 """Mutation-testing results as data: read mutmut's own result files and write docs/testing/mutmut.json,
 or print the Markdown table of docs/testing.md from that JSON.
 
-    .venv/bin/mutmut run --max-children 2 "quadpilot.train.gae.*"          # measure (docs/testing.md)
+    .venv/bin/mutmut run --max-children 2 "quadpilot.train.ppo.gae.*"          # measure (docs/testing.md)
     .venv/bin/python benchmarks/report_mutmut.py record mutants/ docs/testing/mutmut.json gae
     .venv/bin/python benchmarks/report_mutmut.py table docs/testing/mutmut.json
 
@@ -27,12 +27,12 @@ from pathlib import Path
 # label → (file under src/quadpilot, the mutant-name globs that select its mutants: the arguments of
 # the `mutmut run` command that measures it)
 MODULES = {
-    "gae": ("train/gae.py", "quadpilot.train.gae.*"),
+    "gae": ("train/ppo/gae.py", "quadpilot.train.ppo.gae.*"),
     "ppo_update": (
-        "train/ppo.py",
+        "train/ppo/__init__.py",
         ("quadpilot.train.ppo.xǁPPOǁupdate__mutmut_*", "quadpilot.train.ppo.xǁ*PPOǁ_gradient_step__mutmut_*"),
     ),
-    "numpy_ppo": ("train/numpy_ppo.py", "quadpilot.train.numpy_ppo.*"),
+    "numpy_ppo": ("train/ppo/numpy_ppo.py", "quadpilot.train.ppo.numpy_ppo.*"),
     "dynamics": ("core/dynamics.py", "quadpilot.core.dynamics.*"),
     "stepper": (
         "core/dynamics.py",
@@ -47,9 +47,9 @@ MODULES = {
     "link_frames": ("link/frames.py", "quadpilot.link.frames.*"),
 }
 LABELS = {
-    "gae": "`train/gae.py`",
-    "ppo_update": "`train/ppo.py`, `PPO.update` and the variants' `_gradient_step` (the losses)",
-    "numpy_ppo": "`train/numpy_ppo.py` (the update every MLP trains with)",
+    "gae": "`train/ppo/gae.py`",
+    "ppo_update": "`train/ppo/__init__.py`, `PPO.update` and the variants' `_gradient_step` (the losses)",
+    "numpy_ppo": "`train/ppo/numpy_ppo.py` (the update every MLP trains with)",
     "dynamics": "`core/dynamics.py`",
     "stepper": "`core/dynamics.py`, the in-place `Stepper` and its constants",
     "mixer": "`core/mixer.py`",

@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/soak.py --steps 1000000 --out docs/bench/soak_lockstep.json
     .venv/bin/python benchmarks/soak.py --realtime --seconds 1800 --out docs/bench/soak_realtime.json
 
-The simulator runs as its own process (`python -m quadpilot.firmware_sim --sim-only`, as quad-sitl
+The simulator runs as its own process (`python -m quadpilot.simulator --sim-only`, as quad-sitl
 starts it) and the node (`autopilot.node.Node`, the shipped hover policy, numpy backend) in this one,
 over loopback TCP at 100 Hz, for `--episodes` back-to-back episodes (one connection each, as quad-sitl
 flies them) that add up to `--steps` lockstep steps or `--seconds` of real time. After every episode it
@@ -37,7 +37,8 @@ from link_faults import machine
 from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.console import quick
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.sitl import SHIPPED_HOVER, _start_simulator
+from quadpilot.sitl import SHIPPED_HOVER
+from quadpilot.sitl.simulator_process import start_simulator
 
 RATE_HZ = 100
 QUICK_EPISODES, QUICK_EPISODE_S = 2, 2
@@ -86,14 +87,14 @@ def main(argv: list[str] | None = None) -> int:
     episode_s = total_s / args.episodes
     steps_per_episode = round(episode_s * RATE_HZ)
     stats_path = args.out.with_suffix(".sim-stats.tmp.json")
-    cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
+    cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
     cmd += ["--realtime" if args.realtime else "--lockstep"]  # serves until stopped: its RSS is read after the last
     cmd += ["--max-steps", str(steps_per_episode + 10), "--json", str(stats_path)]
     # the simulator writes its --json when SIGINT stops it; a job started in the background (CI) has
     # SIGINT ignored, which a child inherits: it gets Python's own handler for the start instead
     before = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        proc, address = _start_simulator(cmd)
+        proc, address = start_simulator(cmd)
     finally:
         signal.signal(signal.SIGINT, before)
     if proc is None:

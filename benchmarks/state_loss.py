@@ -9,12 +9,12 @@ vehicle's noisy one (ADIS16448: white noise, turn-on bias and bias random walk, 
 `--episodes` episodes per condition (the simulator's seeded starts: episode k of seed 0, the same
 starts in every condition). The state
 stream (HIL_STATE_QUATERNION) is withheld by the simulator's `state-dropout` fault while HIL_SENSOR
-goes on (`firmware_sim.faults`):
+goes on (`simulator.faults`):
 
 - `dropout 0.5 s`: from 2 s of a 5 s flight; judged by the hover rule (`core.mission.judge`, the
   node's log, whose states repeat the last valid one while none arrive).
 - `dropout 5 s` and `dropout never ends`: from 2 s of a 10 s flight; judged on the simulator's
-  ground truth (`firmware_sim.records.EpisodeRecord`): the first ground contact's speed and the tilt
+  ground truth (`simulator.records.EpisodeRecord`): the first ground contact's speed and the tilt
   before it, the fastest descent, steps flown with every motor off in the air, a crash.
 - `no state at all`: a landed start whose state never comes (3 s): the node must refuse to arm.
 
@@ -37,9 +37,9 @@ from pathlib import Path
 from quadpilot.autopilot.flight_log import episode_summary
 from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.console import quick
-from quadpilot.firmware_sim.faults import parse_faults
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.simulator import SimConfig, Simulator
+from quadpilot.simulator.faults import parse_faults
 from quadpilot.sitl import SHIPPED_HOVER
 
 RATES_HZ = (100, 250)

@@ -39,7 +39,8 @@ import pytest
 import quadpilot.train  # noqa: F401  (registers quadpilot/Hover-v0)
 from baseline import BASELINE_COMMIT, baseline_src, run_python
 from quadpilot.core import dynamics
-from quadpilot.core.params import SEED_VEHICLE, ParamBatch
+from quadpilot.core.params import ParamBatch
+from quadpilot.core.vehicle_file import SEED_VEHICLE
 from quadpilot.train.envs import QuadVectorEnv
 
 NS = (1, 64, 1024, 4096)

@@ -48,10 +48,10 @@ from quadpilot.ccode.bench import bench_source, cortex_m4_estimate, operation_co
 from quadpilot.export.onnx_export import deployable, export_onnx
 from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.runtime.cbackend import COMPILE_FLAGS, find_compiler
+from quadpilot.train.algorithms import load_policy as load_trained
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.runs.checkpoint import load_policy as load_trained
-from quadpilot.train.runs.checkpoint import save_untrained_policy
+from quadpilot.train.ppo.checkpoint import save_untrained_policy
 
 MODELS = Path(__file__).parents[1] / "models"
 ROUNDS = {"torch_eager": 5_000}

@@ -1,7 +1,7 @@
 """One PPO minibatch gradient step of the hover networks at minibatch 64 and 1,024, in one run
 (docs/comparison.md, "Why not 10×"): how much of a step is fixed per-call cost, which an
 implementation could remove, and how much is the arithmetic that grows with the minibatch; and the
-same step on our NumPy path (`quadpilot.train.numpy_ppo`, `PPOConfig.update = "numpy"`), measured in
+same step on our NumPy path (`quadpilot.train.ppo.numpy_ppo`, `PPOConfig.update = "numpy"`), measured in
 the same run so that the JSON holds both and the NumPy entries carry the ratio.
 
 The step is what both our PPO and SB3's do per minibatch: forward of actor (18 → 64 → 64 → 4, tanh)
@@ -25,7 +25,7 @@ import pytest
 import torch
 
 from quadpilot.train.networks import ActorCritic
-from quadpilot.train.numpy_ppo import NumpyPPO, one_blas_thread
+from quadpilot.train.ppo.numpy_ppo import NumpyPPO, one_blas_thread
 
 FASTEST: dict[tuple[str, int], float] = {}
 """(path, minibatch) → fastest step in seconds, for the ratio (torch's tests run first: file order)."""

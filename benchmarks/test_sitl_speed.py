@@ -2,14 +2,14 @@
 
 Lockstep (the simulator advances one step per actuator message, as fast as the two processes go):
 the shipped hover ONNX file flown by the node (this process) against the simulator (its own
-process, `python -m quadpilot.firmware_sim`) over loopback TCP, one 20 s episode (2,000 control
+process, `python -m quadpilot.simulator`) over loopback TCP, one 20 s episode (2,000 control
 steps) per round, on each runtime backend. Baselines in the same run: real time (100 steps/s at
 the 100 Hz control rate) and the same policy stepping `core.dynamics` in this process with no wire
 at all (what the two processes and MAVLink cost).
 
 Against commit bb5efb7 (`test_lockstep_vs_baseline`): that commit's node flying against that
 commit's simulator, and today's against today's, each in a child process of its own (the node
-there, its simulator a grandchild: `python -m quadpilot.firmware_sim` of the same source, by
+there, its simulator a grandchild: `python -m quadpilot.sitl --sim-only` of the same source, by
 `baseline.py`'s PYTHONPATH rule), one 20 s episode (2,000 steps) per round, rounds alternating
 between them so that the load of a shared machine falls on all alike. A third child flies today's
 code with the lockstep spin off on both sides (`transport.Link.spin_s`): what the spin adds. Each
@@ -49,17 +49,19 @@ from baseline import BASELINE_COMMIT, REPO, BaselineUnavailable, baseline_src
 from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.core import dynamics
 from quadpilot.core.observation import build_observation
-from quadpilot.core.params import ParamBatch, get_preset
+from quadpilot.core.params import ParamBatch
+from quadpilot.core.vehicle_file import get_preset
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.sitl import SHIPPED_HOVER, _start_simulator
+from quadpilot.sitl import SHIPPED_HOVER
+from quadpilot.sitl.simulator_process import start_simulator
 
 LOCKSTEP_S = 20.0
 REALTIME_S = 5.0
 
 
 def _simulator(*flags):
-    cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0", *flags]
-    proc, address = _start_simulator(cmd)
+    cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0", *flags]
+    proc, address = start_simulator(cmd)
     assert proc is not None, address
     return proc, address
 
@@ -94,9 +96,10 @@ def test_lockstep_closed_loop(benchmark, backend):
 
 
 # One child per version: flies `steps` lockstep steps per "fly" line read from stdin against its own
-# simulator process and answers with one JSON line. Only names both versions have (bb5efb7's and
-# today's quadpilot.sitl._start_simulator, the node (autopilot.node; runtime.node before it), SafetyMonitor,
-# load_policy).
+# simulator process and answers with one JSON line. Only names both versions have: the simulator
+# process as `python -m quadpilot.sitl --sim-only` starts it, the function that starts it
+# (bb5efb7's quadpilot.sitl._start_simulator, today's quadpilot.sitl.simulator_process), the node
+# (autopilot.node; runtime.node before it), SafetyMonitor, load_policy.
 FLYER = r"""
 import json, sys, time
 import numpy as np
@@ -105,13 +108,16 @@ try:
     from quadpilot.autopilot.node import Node, NodeConfig
 except ImportError:  # a baseline from before the vehicle stack had its own package
     from quadpilot.runtime.node import Node, NodeConfig
-from quadpilot.sitl import _start_simulator
+try:
+    from quadpilot.sitl.simulator_process import start_simulator
+except ImportError:  # a baseline from before quad-sitl was a package
+    from quadpilot.sitl import _start_simulator as start_simulator
 
 policy, backend, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])
 no_spin = sys.argv[4:] == ["no-spin"]  # today's only: both sides sleep at once, as before the spin
 steps = round(duration * 100)
-cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
-proc, address = _start_simulator(cmd + ["--max-steps", str(steps + 10)] + (["--spin-us=0"] if no_spin else []))
+cmd = [sys.executable, "-m", "quadpilot.sitl", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
+proc, address = start_simulator(cmd + ["--max-steps", str(steps + 10)] + (["--spin-us=0"] if no_spin else []))
 if proc is None:
     raise SystemExit(f"simulator did not start: {address}")
 monitor = SafetyMonitor(load_policy(policy, backend))

@@ -108,9 +108,9 @@ def draw(t, pos, phases, goals, out: Path) -> int:
     """Write the GIF; returns its number of frames."""
     from matplotlib.collections import LineCollection
 
-    from quadpilot.console import atomic_output
+    from quadpilot.atomic_files import atomic_output
     from quadpilot.viz._mpl import new_figure
-    from quadpilot.viz.video import _gif_writer_class  # the project's shared-palette PillowWriter
+    from quadpilot.viz.video import gif_writer_class  # the project's shared-palette PillowWriter
 
     fig = new_figure(SIZE_PX[0] / DPI, SIZE_PX[1] / DPI, DPI)
     top = fig.add_axes((0.07, 0.12, 0.38, 0.66))
@@ -153,7 +153,7 @@ def draw(t, pos, phases, goals, out: Path) -> int:
         fig.text(0.56 + 0.08 * k, 0.875, name, fontsize=8, color=PHASE_COLOURS[name], weight="bold")
 
     rows = frame_rows(t)
-    writer = _gif_writer_class()(fps=FPS)
+    writer = gif_writer_class()(fps=FPS)
     with atomic_output(out) as tmp, writer.saving(fig, str(tmp), DPI):
         for k in rows:
             k = int(k)

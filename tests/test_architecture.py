@@ -86,13 +86,20 @@ def test_no_folder_holds_more_than_30_percent_of_the_package():
     assert len(shares) >= 8 and not big, f"these folders hold more than {MAX_FOLDER_SHARE:.0%} of the lines: {big}"
 
 
+def module_files(root: Path) -> dict[str, Path]:
+    """{dotted name below `root` (`viz.video`, `viz` for viz/__init__.py): file}, the root's own
+    __init__.py left out."""
+    modules = {
+        ".".join(p.relative_to(root).with_suffix("").parts).removesuffix(".__init__"): p for p in root.rglob("*.py")
+    }
+    modules.pop("__init__", None)
+    return modules
+
+
 def test_no_import_circle_between_the_modules_of_the_package():
     """Module-level graph over every module of src/quadpilot (imports inside functions included):
     a circle anywhere, within a package or across packages, fails."""
-    modules = {
-        ".".join(p.relative_to(SRC).with_suffix("").parts).removesuffix(".__init__"): p for p in SRC.rglob("*.py")
-    }
-    modules.pop("__init__", None)
+    modules = module_files(SRC)
 
     def targets(name: str, path: Path) -> set[str]:
         package = name.split(".")[:-1] if path.name != "__init__.py" else name.split(".")
@@ -203,3 +210,238 @@ def test_a_copied_constant_is_found(tmp_path):
     (tmp_path / "a.py").write_text("NUM_MOTORS = 4\nDT = 0.01\n")
     (tmp_path / "b.py").write_text("NUM_MOTORS = 4\nDT = 0.02\n")
     assert constants_defined_twice(tmp_path) == ["NUM_MOTORS = 4 in a.py, b.py"]
+
+
+# --- private names stay home --------------------------------------------------------------------
+
+
+def _private(name: str) -> bool:
+    """`_x` and `__x` are private to their module; `__x__` (a dunder) and `_` are not."""
+    return name.startswith("_") and len(name) > 1 and not (name.startswith("__") and name.endswith("__"))
+
+
+def _private_members(tree: ast.AST) -> set[str]:
+    """The private names a module's classes define: methods, class attributes, `self._x = ...`."""
+    out = set()
+    for cls in (n for n in ast.walk(tree) if isinstance(n, ast.ClassDef)):
+        for node in ast.walk(cls):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node is not cls:
+                out.add(node.name)
+            elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+                out.add(node.id)  # class attributes (and a method's locals: harmless)
+            elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+                if isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+                    out.add(node.attr)
+    return {n for n in out if _private(n)}
+
+
+def _dotted(expr: ast.AST, aliases: dict[str, str], top: str) -> str | None:
+    """`a.b.c` with its head read through `aliases` (a name bound to one of our modules), or with
+    `top` itself as its head (`import quadpilot.a.m` binds `quadpilot`); else None."""
+    if isinstance(expr, ast.Name):
+        return aliases.get(expr.id, top if expr.id == top else None)
+    if isinstance(expr, ast.Attribute) and (head := _dotted(expr.value, aliases, top)) is not None:
+        return f"{head}.{expr.attr}"
+    return None
+
+
+def _attribute_read(node: ast.AST) -> tuple[ast.AST, str] | None:
+    """(object, name) of `obj.name` or of `getattr(obj, "name")` and its kin."""
+    if isinstance(node, ast.Attribute):
+        return node.value, node.attr
+    if (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id in ("getattr", "setattr", "hasattr", "delattr")
+        and len(node.args) >= 2
+        and isinstance(node.args[1], ast.Constant)
+        and isinstance(node.args[1].value, str)
+    ):
+        return node.args[0], node.args[1].value
+    return None
+
+
+def _own(obj: ast.AST) -> bool:
+    """`self`, `cls` or `super()`: the class's own members."""
+    if isinstance(obj, ast.Call) and isinstance(obj.func, ast.Name):
+        return obj.func.id == "super"
+    return isinstance(obj, ast.Name) and obj.id in ("self", "cls")
+
+
+def private_names_used_across_modules(root: Path) -> list[str]:
+    """Each use, in a module of `root` (a package folder: its name is the top of absolute imports), of
+    a private name that lives in another of its modules: `from .m import _x`, `m._x` through a module
+    `m` imported by any name (`import a.m as m`, `from . import m`, `a.m._x`), and `obj._x` on an
+    object when `_x` is a private member (a method, a class attribute, or an attribute a method sets
+    as `self._x`) of a class in another module and of none in this one; `getattr(obj, "_x")` and its
+    kin count as `obj._x`. A private module may be imported by the modules of its own package.
+
+    What `ast` cannot see, so this does not: the type of an object, so a private member with the same
+    name in this module and in another is taken as this module's own; `self._x`, `cls._x` and
+    `super()._x`, which are taken as the class's own even where a base class in another module
+    defines `_x`; a local name that shadows an imported module; a name reached by a string built at
+    run time."""
+    top = root.name
+    modules = module_files(root)
+    trees = {name: ast.parse(p.read_text(encoding="utf-8")) for name, p in modules.items()}
+    owned = {name: _private_members(tree) for name, tree in trees.items()}
+    found = set()
+    for name, tree in trees.items():
+        where = str(modules[name].relative_to(root))
+        package = name.split(".") if modules[name].name == "__init__.py" else name.split(".")[:-1]
+        others = set().union(*(m for n, m in owned.items() if n != name)) - owned[name]
+        aliases: dict[str, str] = {}  # a local name → the module of ours it stands for
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.asname and (mod := a.name.removeprefix(f"{top}.")) in modules:
+                        aliases[a.asname] = mod
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:  # relative: against the module's package
+                    base, rest = package[: len(package) - node.level + 1], (node.module or "").split(".")
+                elif node.module == top or (node.module or "").startswith(f"{top}."):
+                    base, rest = [], node.module.split(".")[1:]
+                else:
+                    continue
+                mod = ".".join(p for p in [*base, *rest] if p)
+                for a in node.names:
+                    full = f"{mod}.{a.name}".lstrip(".")
+                    if full in modules:
+                        aliases[a.asname or a.name] = full
+                        if _private(a.name) and full.rsplit(".", 1)[0] != ".".join(package):
+                            found.add((where, node.lineno, f"imports the private module {full}"))
+                    elif _private(a.name):
+                        found.add((where, node.lineno, f"imports {a.name} from {mod or top}"))
+        for node in ast.walk(tree):
+            if (read := _attribute_read(node)) is None or not _private(read[1]):
+                continue
+            obj, attr = read
+            module = (_dotted(obj, aliases, top) or "").removeprefix(f"{top}.")
+            if module in modules and module != name:
+                found.add((where, node.lineno, f"uses {attr} of the module {module}"))
+            elif attr in others and not _own(obj):
+                found.add((where, node.lineno, f"uses {attr}, a private member of another module's class"))
+    return [f"{where}:{line}: {what}" for where, line, what in sorted(found)]
+
+
+def test_no_private_name_is_used_by_another_module():
+    used = private_names_used_across_modules(SRC)
+    assert not used, "private names used outside their module (make them public or move the use):\n" + "\n".join(used)
+
+
+def test_a_private_name_used_by_another_module_is_found(tmp_path):
+    pkg = tmp_path / "quadpilot"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("__version__ = '1'\n")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "sub" / "_inner.py").write_text("X = 1\n")
+    (pkg / "sub" / "a.py").write_text(
+        "from . import _inner\n\ndef _hidden():\n    pass\n\n\nclass Policy:\n"
+        "    def __init__(self):\n        self._state = 0\n\n    def _input(self, x):\n        return self._state\n"
+    )
+    (pkg / "b.py").write_text(
+        "import quadpilot.sub.a\nimport quadpilot.sub.a as sa\nfrom quadpilot import __version__\n"
+        "from quadpilot import sub\nfrom .sub.a import _hidden, Policy\nfrom .sub import _inner\n\n"
+        "def run(policy):\n    sub.a._hidden()\n    quadpilot.sub.a._hidden()\n    sa._hidden()\n"
+        "    getattr(policy, '_state')\n    sub.a.Policy().__init__()\n    return policy._input(1)\n\n\n"
+        "class Mine(Policy):\n    def step(self):\n        return self._input(0) + super()._input(0)\n"
+    )
+    assert private_names_used_across_modules(pkg) == [
+        "b.py:5: imports _hidden from sub.a",
+        "b.py:6: imports the private module sub._inner",
+        "b.py:9: uses _hidden of the module sub.a",
+        "b.py:10: uses _hidden of the module sub.a",
+        "b.py:11: uses _hidden of the module sub.a",
+        "b.py:12: uses _state, a private member of another module's class",
+        "b.py:14: uses _input, a private member of another module's class",
+    ]
+
+
+# --- the floors inside train ------------------------------------------------------------------
+
+
+def train_floors() -> dict[str, int]:
+    """docs/architecture.md's floor table of `train`: sub-package or top-level module → floor."""
+    doc = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    table = doc.split("<!-- train-floors", 1)[1].split("<!-- /train-floors -->", 1)[0]
+    floors = {}
+    for line in table.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].isdigit():
+            floors.update(dict.fromkeys(re.findall(r"`([a-z_0-9]+)`", cells[1]), int(cells[0])))
+    return floors
+
+
+def train_imports(train: Path) -> list[tuple[str, str, str]]:
+    """Every import between the parts of the package `train` (its sub-packages and top-level
+    modules), at module level or inside a function: (file:line, importing part, imported part).
+    A file's part is its first folder under `train`, or its own name at the top."""
+    found = []
+    for path in sorted(train.rglob("*.py")):
+        rel = path.relative_to(train)
+        if rel == Path("__init__.py"):
+            continue  # the package itself: it registers the environments and imports nothing of ours
+        part = rel.parts[0].removesuffix(".py")
+        package = list(rel.parts[:-1])  # the importing file's package, as folders under train
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                if node.level - 1 > len(package):
+                    continue  # above train: another of our packages
+                mod = [*package[: len(package) - node.level + 1], *(node.module.split(".") if node.module else [])]
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith(f"quadpilot.{train.name}"):
+                mod, names = node.module.split(".")[2:], [a.name for a in node.names]
+            elif isinstance(node, ast.Import):
+                mods = [a.name.split(".")[2:] for a in node.names if a.name.startswith(f"quadpilot.{train.name}.")]
+                found += [(f"{rel}:{node.lineno}", part, m[0]) for m in mods]
+                continue
+            else:
+                continue
+            targets = [mod[0]] if mod else names  # `from .. import cli` names the part itself
+            found += [(f"{rel}:{node.lineno}", part, t) for t in targets if t != part]
+    return found
+
+
+def upward_imports(train: Path, floors: dict[str, int]) -> list[str]:
+    """The imports inside `train` to a higher floor, and the parts the floor table does not place."""
+    bad = []
+    for where, part, target in train_imports(train):
+        if part not in floors or target not in floors:
+            bad.append(f"{where}: {part} → {target}: not in the floor table")
+        elif floors[target] > floors[part]:
+            bad.append(f"{where}: {part} (floor {floors[part]}) imports {target} (floor {floors[target]})")
+    return bad
+
+
+def test_the_floor_table_places_every_part_of_train():
+    train = SRC / "train"
+    parts = {p.name.removesuffix(".py") for p in train.iterdir() if p.suffix == ".py" or (p / "__init__.py").exists()}
+    assert set(train_floors()) == parts - {"__init__"}
+
+
+def test_imports_inside_train_go_down_or_sideways():
+    bad = upward_imports(SRC / "train", train_floors())
+    assert not bad, "imports docs/architecture.md's floors of train do not allow:\n" + "\n".join(bad)
+
+
+def test_floor_check_finds_planted_ones(tmp_path):
+    train = tmp_path / "train"
+    for folder in ("envs", "runs", "ppo"):
+        (train / folder).mkdir(parents=True)
+        (train / folder / "__init__.py").write_text("")
+    (train / "cli.py").write_text("from .runs import loop\nfrom .ppo import PPO\n")
+    (train / "envs" / "batch.py").write_text("import numpy\n")
+    (train / "ppo" / "__init__.py").write_text("from ..runs import trainer\nfrom . import config\n")
+    (train / "runs" / "loop.py").write_text(
+        "from ..envs import batch\n\n\ndef train():\n    from ..ppo import PPO\n    import quadpilot.train.cli\n"
+    )
+    (train / "runs" / "checkpoint.py").write_text(
+        "from quadpilot.train import ppo\nfrom quadpilot.train.sac import SAC\n"
+    )
+    floors = {"cli": 3, "ppo": 2, "runs": 1, "envs": 0}
+    assert upward_imports(train, floors) == [
+        "runs/checkpoint.py:1: runs (floor 1) imports ppo (floor 2)",
+        "runs/checkpoint.py:2: runs → sac: not in the floor table",
+        "runs/loop.py:5: runs (floor 1) imports ppo (floor 2)",
+        "runs/loop.py:6: runs (floor 1) imports cli (floor 3)",
+    ]

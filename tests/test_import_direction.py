@@ -1,4 +1,4 @@
-"""docs/architecture.md's import direction: runtime and firmware_sim never pull in torch, gymnasium or the
+"""docs/architecture.md's import direction: runtime, simulator and sitl never pull in torch, gymnasium or the
 training side; `import quadpilot` alone stays light."""
 
 import subprocess
@@ -11,7 +11,10 @@ HEAVY = ("torch", "gymnasium", "stable_baselines3", "quadpilot.train", "quadpilo
 
 @pytest.mark.parametrize(
     "module",
-    ["quadpilot", "quadpilot.core", "quadpilot.link", "quadpilot.runtime", "quadpilot.firmware_sim", "quadpilot.viz"],
+    [
+        *("quadpilot", "quadpilot.core", "quadpilot.link", "quadpilot.runtime", "quadpilot.simulator"),
+        *("quadpilot.sitl", "quadpilot.viz"),
+    ],
 )
 def test_light_packages_do_not_import_heavy_ones(module):
     code = f"import sys, {module}; print(sorted(m for m in {HEAVY!r} if m in sys.modules))"
@@ -52,7 +55,7 @@ class Refuse:
             raise ImportError("refused by the test: " + name)
         return None
 sys.meta_path.insert(0, Refuse())
-import quadpilot.firmware_sim
+import quadpilot.simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
 for backend in sys.argv[2:]:
     monitor = SafetyMonitor(load_policy(sys.argv[1], backend))

@@ -29,8 +29,8 @@ import numpy as np
 import torch
 
 from quadpilot.core.sensor_noise import get_sensor_noise
-from quadpilot.train.evaluate import evaluate
-from quadpilot.train.runs.checkpoint import load_policy
+from quadpilot.train.algorithms import load_policy
+from quadpilot.train.envs.evaluate import evaluate
 
 CONDITIONS = {
     "trained: noise, τ 30 ms": {"noise": 1.0, "tau": 0.03},
@@ -67,9 +67,9 @@ def eval_runs(groups: dict[str, list[Path]], episodes: int) -> dict:
             trained = json.loads((d / "eval.json").read_text())
             row = {
                 "group": group,
-                "arch": policy.ppo_config.arch,
-                "obs_history": policy.ppo_config.obs_history,
-                "seed": policy.ppo_config.seed,
+                "arch": policy.config.arch,
+                "obs_history": policy.config.obs_history,
+                "seed": policy.config.seed,
                 "steps": trained["global_step"],
                 "train_time_s": trained["train_time_s"],
                 "first_success": trained.get("first_success"),

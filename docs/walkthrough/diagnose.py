@@ -54,7 +54,7 @@ def _parse_sets(items: list[str]) -> dict:
 def run(args: argparse.Namespace) -> int:
     from quadpilot.console import quick
     from quadpilot.train.envs import make_config
-    from quadpilot.train.evaluate import evaluate
+    from quadpilot.train.envs.evaluate import evaluate
     from quadpilot.train.ppo import PPO, NonFiniteError, PPOConfig
     from quadpilot.train.runs.runlog import MetricsLog, write_json
 

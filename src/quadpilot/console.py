@@ -8,28 +8,23 @@ simulator's own command line, quad-demo, quad-compare, the montage).
   a bad flag (docs/security.md lists the rest).
 - `check_output_path`: an output is checked before any work starts, so that no run is lost to a
   path it cannot write at the end.
-- `atomic_output` / `atomic_write`: the one way every file the package writes is written (run
-  files, checkpoints, ONNX and C exports, plots, videos, reports): whole or not at all.
 - `docs_quick` / `quick`: the one switch (`QUADPILOT_DOCS_QUICK=1`) under which the commands the
   documentation shows run as a smoke test (a few training steps, one or two episodes) instead of at
   full size, so that tests/docs/test_doc_commands.py can run them as written.
 
-Imports nothing of ours and nothing heavy: the runtime, the simulator and the plots use it too."""
+Files are written with `quadpilot.atomic_files`. Imports nothing of ours and nothing heavy."""
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import os
 import re
-import secrets
 import stat
 import sys
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
-from typing import IO
 
 EXIT_OK, EXIT_BAD_FILE, EXIT_BAD_FLAG = 0, 1, 2
 NEGATIVE_VALUE = re.compile(r"^-\.?\d")
@@ -210,56 +205,3 @@ def _check_output_path(path: Path, flag: str, directory: bool) -> None:
         raise ValueError(f"{flag} {path}: cannot write in {where} ({e.strerror or e})") from None
     os.close(fd)
     os.unlink(probe)
-
-
-# --- atomic output files ----------------------------------------------------------------------
-
-
-@contextlib.contextmanager
-def atomic_output(out: str | os.PathLike, keep_previous: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside `out` (not yet existing, named `.<name>.<pid>.<random>.tmp`
-    plus `out`'s suffix, so that writers choosing a format by extension still work) for the block
-    to create. When the block succeeds: the file is fsync'd, the current `out` is moved to
-    `keep_previous` if given (a name in the same directory), the temporary is renamed onto `out`
-    and the directory fsync'd. When it fails, the temporary is deleted and the error goes on.
-
-    A crash leaves the old `out` (or, between the two renames, only `keep_previous`), never a torn
-    file; a leftover temporary is harmless and may be deleted. The writer creates the file, so the
-    umask gives its permissions (`tempfile.mkstemp` would make it 0600)."""
-    out = Path(out)
-    directory = out.parent
-    directory.mkdir(parents=True, exist_ok=True)
-    tmp = directory / f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp{out.suffix}"
-    try:
-        yield tmp
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        if keep_previous is not None and out.exists():
-            os.replace(out, directory / keep_previous)
-        os.replace(tmp, out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    _fsync_dir(directory)
-
-
-def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], None], keep_previous: str | None = None) -> Path:
-    """Write `path` atomically (`atomic_output`): `write(f)` writes the bytes into a new file."""
-    with atomic_output(path, keep_previous) as tmp:
-        with open(tmp, "xb") as f:  # "x": never through a file or link that is already there
-            write(f)
-    return Path(path)
-
-
-def _fsync_dir(directory: Path) -> None:
-    """Make a rename durable: fsync the directory entry (POSIX; Windows cannot open directories)."""
-    if os.name == "nt":
-        return
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

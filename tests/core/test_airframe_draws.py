@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quadpilot.core.params import SEED_VEHICLE, ParamBatch
+from quadpilot.core.params import ParamBatch
 from quadpilot.core.randomization import AIRFRAMES, PRESETS, Randomizer, draw_airframes, preset
-from quadpilot.core.vehicle_file import load_vehicle_file
-from quadpilot.train.batch import QuadBatch
+from quadpilot.core.vehicle_file import SEED_VEHICLE, load_vehicle_file
 from quadpilot.train.envs import make_config
+from quadpilot.train.envs.batch import QuadBatch
 
 N = 4000
 
@@ -134,8 +134,8 @@ def test_a_checkpoint_from_before_airframes_still_restores_a_plain_randomizer():
 def test_a_generalist_run_stops_and_resumes(tmp_path):
     """quad-train --randomize airframes: its checkpoint carries each drone's hover command, and the
     run resumes from it (the checkpoint check compares it with a fresh run of the same flags)."""
+    from quadpilot.train.algorithms import load_checkpoint
     from quadpilot.train.cli import main
-    from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
     flags = ["--task", "hover", "--randomize", "airframes", "--num-envs", "8", "--rollout-steps", "16"]
     flags += ["--minibatch-size", "64", "--threads", "1", "--eval-episodes", "0", "--eval-every", "0"]

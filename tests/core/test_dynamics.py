@@ -14,7 +14,8 @@ import pytest
 from quadpilot.core import dynamics
 from quadpilot.core.dynamics import IDX, hover_command, step
 from quadpilot.core.frames import euler_to_rotmat
-from quadpilot.core.params import CRAZYFLIE, SEED_VEHICLE, ParamBatch
+from quadpilot.core.params import ParamBatch
+from quadpilot.core.vehicle_file import CRAZYFLIE, SEED_VEHICLE
 
 PRESETS = [SEED_VEHICLE, CRAZYFLIE]
 PRESET_IDS = [p.name for p in PRESETS]

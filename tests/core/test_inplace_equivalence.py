@@ -23,7 +23,7 @@ from quadpilot.core import dynamics
 from quadpilot.core.frames import euler_to_rotmat, euler_to_rotmat_rows, world_to_body, world_to_body_rows
 from quadpilot.core.mission import yaw_errors
 from quadpilot.core.observation import ObservationBuilder, build_observation
-from quadpilot.core.params import CRAZYFLIE, PX4_SIH_QUADX, SEED_VEHICLE, ParamBatch, Rotor
+from quadpilot.core.params import ParamBatch, Rotor
 from quadpilot.core.reward import (
     RewardConfig,
     StepTerms,
@@ -34,6 +34,7 @@ from quadpilot.core.reward import (
 )
 from quadpilot.core.sensor_noise import SensorNoiseState, get_sensor_noise
 from quadpilot.core.state import ATT, PITCH, POS, RATES, ROLL, STATE_DIM, YAW
+from quadpilot.core.vehicle_file import CRAZYFLIE, PX4_SIH_QUADX, SEED_VEHICLE
 
 # the awkward states overflow and make NaN on purpose
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")

@@ -52,8 +52,8 @@ STATE_VARS_IN = {"core/sensor_noise.py": frozenset({"out"})}  # SensorNoise.esti
 
 # (file, subscript as ast.unparse writes it) → why it is not a 12-state index.
 ALLOWED = {
-    ("firmware_sim/plant.py", "s[0]"): "row 0 of dynamics.step's (1, 12) result",
-    ("firmware_sim/config.py", "s[0]"): "row 0 of sample_start_states' (1, 12) result",
+    ("simulator/plant.py", "s[0]"): "row 0 of dynamics.step's (1, 12) result",
+    ("simulator/config.py", "s[0]"): "row 0 of sample_start_states' (1, 12) result",
     ("export/onnx_export.py", "starts[0]"): "time 0 of the (steps, sequences) episode-start flags",
     ("export/onnx_export.py", "state[0]"): "h of a recurrent policy's (h, c) state",
     ("export/onnx_export.py", "state[1]"): "c of a recurrent policy's (h, c) state",

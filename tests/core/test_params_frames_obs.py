@@ -10,7 +10,8 @@ import pytest
 from quadpilot.core.dynamics import IDX
 from quadpilot.core.frames import euler_to_quaternion, euler_to_rotmat, quaternion_to_euler, rotmat_to_euler
 from quadpilot.core.observation import HOVER_LAYOUT, LAYOUTS, TRACK_LAYOUT, build_observation, get_layout
-from quadpilot.core.params import CRAZYFLIE, PRESETS, SEED_VEHICLE, ParamBatch, get_preset
+from quadpilot.core.params import ParamBatch
+from quadpilot.core.vehicle_file import CRAZYFLIE, PRESETS, SEED_VEHICLE, get_preset
 
 # --- 8. presets ---------------------------------------------------------------------------
 

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from quadpilot.core.dynamics import IDX, step
-from quadpilot.core.params import CRAZYFLIE, SEED_VEHICLE, ParamBatch
+from quadpilot.core.params import ParamBatch
 from quadpilot.core.randomization import PRESETS, RandomizationConfig, Randomizer, preset
+from quadpilot.core.vehicle_file import CRAZYFLIE, SEED_VEHICLE
 
 DT = 0.01
 G = SEED_VEHICLE.gravity

@@ -19,17 +19,8 @@ import pytest
 
 from quadpilot.core import dynamics
 from quadpilot.core.dynamics import IDX, step
-from quadpilot.core.params import (
-    NUM_MOTORS,
-    PX4_SIH_QUADX,
-    SEED_VEHICLE,
-    ParamBatch,
-    Rotor,
-    VehicleParams,
-    allocation_matrix,
-    unit_layout,
-)
-from quadpilot.core.vehicle_file import load_vehicle_file, resolve_vehicle
+from quadpilot.core.params import NUM_MOTORS, ParamBatch, Rotor, VehicleParams, allocation_matrix, unit_layout
+from quadpilot.core.vehicle_file import PX4_SIH_QUADX, SEED_VEHICLE, load_vehicle_file, resolve_vehicle
 
 H = 0.01  # s
 HUMMINGBIRD = Path(__file__).parents[1] / "data" / "vehicles" / "rotorpy_hummingbird.toml"

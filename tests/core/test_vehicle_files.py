@@ -9,8 +9,9 @@ import re
 
 import pytest
 
-from quadpilot.core.params import PRESETS, Rotor, VehicleParams, quad_x
+from quadpilot.core.params import Rotor, VehicleParams, quad_x
 from quadpilot.core.vehicle_file import (
+    PRESETS,
     VEHICLES_DIR,
     UnknownVehicleError,
     VehicleFileError,
@@ -183,6 +184,9 @@ BAD = {
     "unknown key": (_variant(arm="0.1"), "arm", "unknown key"),
     "bad name": (_variant(name='"two words"'), "name", "letters"),
     "name a number": (_variant(name="3"), "name", "letters"),
+    "name of a hidden file": (_variant(name='".heavy"'), "name", "the first a letter or digit"),
+    "name a parent directory": (_variant(name='".."'), "name", "the first a letter or digit"),
+    "name an option": (_variant(name='"-heavy"'), "name", "the first a letter or digit"),
     "no rotor": (_variant().split("[[rotor]]")[0], "rotor", "missing"),
     "three rotors": ("[[rotor]]".join(_variant().split("[[rotor]]")[:4]), "rotor", "3 rotor table(s); expected 4"),
     "six rotors": (_with_rotors(PLUS + PLUS[:2]), "rotor", "6 rotor table(s); expected 4"),
@@ -240,8 +244,7 @@ def test_rotorpys_parasitic_drag_reads_as_it_is_written():
 
 
 def test_differences_name_each_parameter_with_its_unit_and_every_number_has_one():
-    from quadpilot.core.params import get_preset
-    from quadpilot.core.vehicle_file import UNITS, differences
+    from quadpilot.core.vehicle_file import UNITS, differences, get_preset
 
     numbers = {f.name for f in dataclasses.fields(VehicleParams)} - {"name", "rotors"}
     assert set(UNITS) == numbers

@@ -18,18 +18,18 @@ REF_RE = re.compile(rf"(?<![\w./-])({_PATH})::([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)"
 
 # The core components the walkthrough must explain.
 REQUIRED_REFS = {
-    "src/quadpilot/train/gae.py::compute_gae",
-    "src/quadpilot/train/ppo.py::FeedForwardPPO.collect",
-    "src/quadpilot/train/ppo.py::PPO.update",
-    "src/quadpilot/train/ppo_config.py::PPOConfig",
-    "src/quadpilot/train/networks.py::ActorCritic",
-    "src/quadpilot/train/networks.py::ActorCritic.distribution",
+    "src/quadpilot/train/ppo/gae.py::compute_gae",
+    "src/quadpilot/train/ppo/__init__.py::FeedForwardPPO.collect",
+    "src/quadpilot/train/ppo/__init__.py::PPO.update",
+    "src/quadpilot/train/ppo/config.py::PPOConfig",
+    "src/quadpilot/train/networks/__init__.py::ActorCritic",
+    "src/quadpilot/train/networks/__init__.py::ActorCritic.distribution",
     "src/quadpilot/core/normalize.py::RunningMeanStd",
 }
 # Every file the walkthrough is asked to cover must be referenced at least once.
 REQUIRED_FILES = {
-    *(f"src/quadpilot/train/{n}.py" for n in ("networks", "gae", "ppo", "envs", "runs/checkpoint", "runs/runlog")),
-    *(f"src/quadpilot/train/{n}.py" for n in ("evaluate", "curriculum")),
+    *(f"src/quadpilot/train/{n}.py" for n in ("networks/__init__", "ppo/gae", "ppo/__init__", "envs/__init__")),
+    *(f"src/quadpilot/train/{n}.py" for n in ("runs/checkpoint", "runs/runlog", "envs/evaluate", "envs/curriculum")),
     *(f"src/quadpilot/core/{n}.py" for n in ("dynamics", "observation", "reward", "normalize")),
 }
 # metrics.csv columns the diagnosis section reads; each must be a real column (runlog.COLUMNS).
@@ -163,7 +163,7 @@ def test_the_checker_notices_a_rename(tmp_path):
 
 def _ppo_defaults() -> dict[str, object]:
     """PPOConfig's field defaults, read from the source with ast (the `fast` preset overrides none)."""
-    tree = ast.parse((ROOT / "src/quadpilot/train/ppo_config.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "src/quadpilot/train/ppo/config.py").read_text(encoding="utf-8"))
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "PPOConfig")
     fields = {
         s.target.id: ast.literal_eval(s.value)

@@ -31,10 +31,10 @@ from quadpilot.export.cli import main
 from quadpilot.export.onnx_export import _step_sequences, parity_observations, parity_sequences, sha256_of
 from quadpilot.modelfile.model import read_model
 from quadpilot.runtime.cbackend import find_compiler
+from quadpilot.train.algorithms import load_checkpoint, load_policy
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.runs.checkpoint import load_policy, save_untrained_policy
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.ppo.checkpoint import save_untrained_policy
 
 MODELS = Path(__file__).parents[2] / "models"
 COMPILER = find_compiler()

@@ -13,10 +13,10 @@ import pytest
 from quadpilot.export.cli import main
 from quadpilot.export.onnx_export import ONNX_SCHEMA, check_parity, export_onnx, parity_sequences, reference_commands
 from quadpilot.modelfile.model import read_model
+from quadpilot.train.algorithms import load_checkpoint, load_policy
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.runs.checkpoint import load_policy, save_untrained_policy
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.ppo.checkpoint import save_untrained_policy
 
 MODELS = Path(__file__).parents[2] / "models"
 

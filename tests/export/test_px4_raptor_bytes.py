@@ -28,7 +28,7 @@ import hashlib, sys
 from pathlib import Path
 from quadpilot.export import px4_raptor_export as E
 from quadpilot.train.envs import EnvConfig
-from quadpilot.train.raptor_distill import load_student
+from quadpilot.train.raptor.distill import load_student
 student, ckpt = load_student(Path(sys.argv[1]))
 xs, ys = E.example(student.weights(), EnvConfig.from_json(ckpt["env_config"]))
 print(hashlib.sha256(xs.tobytes() + ys.tobytes()).hexdigest())

@@ -13,14 +13,15 @@ import pytest
 import torch
 
 from quadpilot.core.dynamics import action_to_command
-from quadpilot.core.params import QUAD_X_UNIT, flu_layout, get_preset, unit_layout
-from quadpilot.core.vehicle_file import load_vehicle_file, resolve_vehicle
+from quadpilot.core.params import QUAD_X_UNIT, flu_layout, unit_layout
+from quadpilot.core.vehicle_file import get_preset, load_vehicle_file, resolve_vehicle
 from quadpilot.export.cli import main
 from quadpilot.runtime.backends import load_policy as load_runtime_policy
+from quadpilot.train.algorithms import load_policy
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.retarget import RetargetError, _head_names, hover_trim, rotor_permutation
-from quadpilot.train.runs.checkpoint import load_policy, save_untrained_policy
+from quadpilot.train.ppo.checkpoint import save_untrained_policy
+from quadpilot.train.ppo.retarget import RetargetError, _head_names, hover_trim, rotor_permutation
 
 ROTORPY_ORDER = "benchmarks/airframes/rotorpy_hummingbird.toml"  # RotorPy numbers from front-left
 ASYMMETRIC = "benchmarks/airframes/asymmetric.toml"
@@ -185,9 +186,9 @@ def test_a_history_policy_is_retargeted_only_where_its_past_actions_match(tmp_pa
     trim: onto a file that numbers its rotors otherwise, or onto an unbalanced frame, its input would
     hold what it never saw, so it is refused; onto one with its order and no trim it is retargeted.
     quad-export then refuses it in one line (such a policy runs in-process only) and leaves no file."""
+    from quadpilot.train.algorithms import load_checkpoint
     from quadpilot.train.cli import main as train
-    from quadpilot.train.retarget import retarget_checkpoint
-    from quadpilot.train.runs.checkpoint import load_checkpoint
+    from quadpilot.train.ppo.retarget import retarget_checkpoint
 
     tiny = ["--num-envs", "16", "--rollout-steps", "16", "--minibatch-size", "64", "--threads", "1"]
     tiny += ["--eval-episodes", "0", "--eval-every", "0", "--task", "hover", "--total-steps", "256"]

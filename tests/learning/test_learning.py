@@ -3,7 +3,7 @@ learner gets, so a flipped objective or an LSTM state that is not carried from s
 here even where the unit tests of the maths still pass.
 
 - PPO (the `fast` preset, what `quad-train --task hover` runs) reaches the hover success bar
-  (`core.mission`'s definition through `train.evaluate`, the bar `quad-train` records) within 70
+  (`core.mission`'s definition through `train.envs.evaluate`, the bar `quad-train` records) within 70
   updates, 0.57 M steps (README: first at 0.49 M for each of 3 seeds, evaluating every 10 updates).
 - Recurrent PPO (`arch="lstm"`) learns a task that needs memory, and the MLP with the same budget
   cannot: a cue shown only in the first observation of an episode decides the right action for the
@@ -35,7 +35,7 @@ import pytest
 import torch
 
 from quadpilot.train.envs import make_config
-from quadpilot.train.evaluate import evaluate
+from quadpilot.train.envs.evaluate import evaluate
 from quadpilot.train.ppo import PPO, PRESETS, PPOConfig
 from quadpilot.train.runs.loop import SUCCESS_BAR
 from quadpilot.train.sac import SAC, SACConfig

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from quadpilot.train.evaluate import evaluate
-from quadpilot.train.runs.checkpoint import load_policy
+from quadpilot.train.algorithms import load_policy
+from quadpilot.train.envs.evaluate import evaluate
 
 MODELS = Path(__file__).parents[2] / "models"
 EPISODES = 50
@@ -187,7 +187,7 @@ def test_px4_raptor_policies_fly_from_their_policy_tar_within_the_hover_rule(fol
     from quadpilot.runtime.gru import GruStep
     from quadpilot.runtime.rltools_tar import read_policy_tar
     from quadpilot.train.envs import EnvConfig
-    from quadpilot.train.raptor_distill import fly, load_student, numpy_policy
+    from quadpilot.train.raptor.distill import fly, load_student, numpy_policy
 
     _, ckpt = load_student(MODELS / folder / "policy.pt")
     cfg = EnvConfig.from_json(ckpt["env_config"])

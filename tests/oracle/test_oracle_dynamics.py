@@ -16,7 +16,8 @@ import pytest
 
 from quadpilot.core import dynamics
 from quadpilot.core.dynamics import IDX, STATE_DIM, hover_command, step
-from quadpilot.core.params import GRAVITY, SEED_VEHICLE, ParamBatch
+from quadpilot.core.params import GRAVITY, ParamBatch
+from quadpilot.core.vehicle_file import SEED_VEHICLE
 
 V = SEED_VEHICLE
 H = 0.01  # s, one control step

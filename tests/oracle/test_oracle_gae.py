@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from quadpilot.train.envs import make_config
-from quadpilot.train.gae import compute_gae
 from quadpilot.train.ppo import PPO, PPOConfig
+from quadpilot.train.ppo.gae import compute_gae
 
 GAMMA, LAM = 0.9, 0.8  # γλ = 0.72
 

@@ -98,7 +98,8 @@ def test_the_fallback_holds_the_commanded_heading_in_a_version_two_observation(h
     version-2 observation: with heading_frame it turns to the commanded heading; without (a
     version-1 controller), it holds the heading it found, 0.5 rad."""
     from quadpilot.core import dynamics
-    from quadpilot.core.params import ParamBatch, get_preset
+    from quadpilot.core.params import ParamBatch
+    from quadpilot.core.vehicle_file import get_preset
     from quadpilot.runtime.fallback import FallbackController
 
     vehicle = get_preset("seed")

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 import torch
 
-from quadpilot.train import recurrent_ppo
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, NonFiniteError, PPOConfig
+from quadpilot.train.ppo import recurrent as recurrent_ppo
 from quadpilot.train.sac import SAC, SACConfig, squashed_log_prob, temperature_loss
 
 EPS = 0.2

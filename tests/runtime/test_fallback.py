@@ -17,8 +17,8 @@ from quadpilot.core.dynamics import IDX, hover_command, step
 from quadpilot.core.frames import euler_to_rotmat
 from quadpilot.core.mission import judge
 from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT, build_observation
-from quadpilot.core.params import CRAZYFLIE, PX4_SIH_QUADX, SEED_VEHICLE, ParamBatch, Rotor
-from quadpilot.core.vehicle_file import load_vehicle_file
+from quadpilot.core.params import ParamBatch, Rotor
+from quadpilot.core.vehicle_file import CRAZYFLIE, PX4_SIH_QUADX, SEED_VEHICLE, load_vehicle_file
 from quadpilot.runtime.fallback import FallbackController, FallbackGains, allocation_matrix
 
 PRESETS = [SEED_VEHICLE, CRAZYFLIE]

@@ -410,7 +410,7 @@ def lstm_onnx(tmp_path_factory):
     from quadpilot.export.onnx_export import export_onnx
     from quadpilot.train.envs import make_config
     from quadpilot.train.ppo import PPOConfig
-    from quadpilot.train.runs.checkpoint import save_untrained_policy
+    from quadpilot.train.ppo.checkpoint import save_untrained_policy
 
     d = tmp_path_factory.mktemp("lstm")
     pt = save_untrained_policy(d / "policy.pt", PPOConfig(arch="lstm"), make_config("hover"))

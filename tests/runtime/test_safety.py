@@ -47,8 +47,8 @@ def policy(request):
 
 class Spy:
     """Delegates to a real policy and records every observation that reaches it. SafetyMonitor
-    binds `policy._act` at construction and calls it directly, so `_act` is what must be watched;
-    `act` is recorded too, in case a later monitor calls the public method."""
+    binds `policy.act_unchecked` at construction and calls it directly, so `act_unchecked` is what
+    must be watched; `act` is recorded too, in case a later monitor calls it."""
 
     def __init__(self, inner: Policy) -> None:
         self.inner = inner
@@ -59,9 +59,9 @@ class Spy:
         self.seen: list[np.ndarray] = []
         self.resets = 0
 
-    def _act(self, x):
+    def act_unchecked(self, x):
         self.seen.append(np.array(x, dtype=np.float64, copy=True))
-        return self.inner._act(x)
+        return self.inner.act_unchecked(x)
 
     def act(self, obs):
         self.seen.append(np.array(obs, dtype=np.float64, copy=True).reshape(-1))
@@ -82,7 +82,7 @@ class FixedCommand(Policy):
         self.command = np.asarray(command, np.float32)
         self.calls = 0
 
-    def _act(self, x):
+    def act_unchecked(self, x):
         self.calls += 1
         return self.command.copy()
 

@@ -47,7 +47,7 @@ class NanOnce(Policy):
         super().__init__(info)
         self.bad_call, self.calls = bad_call, 0
 
-    def _act(self, x):
+    def act_unchecked(self, x):
         self.calls += 1
         return np.full(4, np.nan if self.calls - 1 == self.bad_call else 0.5, np.float32)
 

@@ -35,7 +35,8 @@ import torch
 from quadpilot.export.onnx_export import supported_opsets
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
-from quadpilot.train.runs.checkpoint import LATEST, checkpoint_dict, policy_checkpoint_dict
+from quadpilot.train.ppo.checkpoint import policy_checkpoint_dict
+from quadpilot.train.runs.checkpoint import LATEST, checkpoint_dict
 from quadpilot.train.runs.runlog import LOCK
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,9 +57,9 @@ PRELOAD = [
     *("torch", "torch._dynamo", "onnx", "onnxruntime", "gymnasium", "rich.progress", "matplotlib.backends.backend_agg"),
     *(
         "quadpilot.train." + m
-        for m in ("ppo", "runs.checkpoint", "envs", "curriculum", "evaluate", "runs.runlog", "sac")
+        for m in ("ppo", "runs.checkpoint", "envs", "envs.curriculum", "envs.evaluate", "runs.runlog", "sac")
     ),
-    *("quadpilot.export.onnx_export", "quadpilot.export.c_export", "quadpilot.firmware_sim.sim", "quadpilot.viz"),
+    *("quadpilot.export.onnx_export", "quadpilot.export.c_export", "quadpilot.simulator", "quadpilot.viz"),
     *("quadpilot.runtime", "quadpilot.autopilot.node", "quadpilot.link.tlog", "quadpilot.core.mission"),
 ]
 
@@ -715,7 +716,7 @@ def test_a_second_run_in_a_locked_run_directory_is_refused_and_changes_nothing(t
 
 
 def _simulators_on(listen: str) -> list[int]:
-    """Pids of the simulator processes (python -m quadpilot.firmware_sim) told to listen on `listen`."""
+    """Pids of the simulator processes (python -m quadpilot.simulator) told to listen on `listen`."""
     found = []
     for p in Path("/proc").iterdir():
         if p.name.isdigit():
@@ -723,7 +724,7 @@ def _simulators_on(listen: str) -> list[int]:
                 args = (p / "cmdline").read_bytes().decode(errors="replace").split("\0")
             except OSError:
                 continue
-            if "quadpilot.firmware_sim" in args and listen in args:
+            if "quadpilot.simulator" in args and listen in args:
                 found.append(int(p.name))
     return found
 
@@ -773,8 +774,9 @@ def test_the_simulator_never_outlives_quad_sitl(tmp_path):
     waiting = f"tcp:127.0.0.1:{_free_port()}"
     parent = (
         "import sys, time\n"
-        "from quadpilot.sitl import _Simulator\n"
-        f"sim = _Simulator([sys.executable, '-m', 'quadpilot.firmware_sim', '--sim-only', '--listen', '{waiting}'])\n"
+        "from quadpilot.sitl.simulator_process import SimulatorProcess\n"
+        "sim = SimulatorProcess([sys.executable, '-m', 'quadpilot.simulator', '--sim-only', '--listen', "
+        f"'{waiting}'])\n"
         "assert sim.wait_listening(60)[0]\n"
         "time.sleep(120)\n"
     )

@@ -33,9 +33,10 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from onnx import helper, numpy_helper
 
-from quadpilot.core.params import CRAZYFLIE, PRESETS, SEED_VEHICLE, ParamBatch, VehicleParams
+from quadpilot.core.params import ParamBatch, VehicleParams
 from quadpilot.core.randomization import PRESETS as RANDOMIZATION_PRESETS
 from quadpilot.core.randomization import preset as randomization_preset
+from quadpilot.core.vehicle_file import CRAZYFLIE, PRESETS, SEED_VEHICLE
 from quadpilot.modelfile.model import ModelContractError, read_model
 from quadpilot.runtime import SafetyMonitor, backends
 from quadpilot.runtime.backends import BACKENDS, ObservationShapeError, OnnxRuntimePolicy, load_policy
@@ -152,7 +153,7 @@ def exported_elu_mlp(tmp_path_factory):
     from quadpilot.export.onnx_export import export_onnx
     from quadpilot.train.envs import make_config
     from quadpilot.train.ppo import PPOConfig
-    from quadpilot.train.runs.checkpoint import save_untrained_policy
+    from quadpilot.train.ppo.checkpoint import save_untrained_policy
 
     d = tmp_path_factory.mktemp("variant")
     cfg = PPOConfig(activation="elu", actor_hidden=(32, 32, 16), normalize_obs=True)

@@ -301,7 +301,7 @@ def _connect_once(port: int, done: threading.Event) -> None:
 
 @pytest.mark.parametrize(("flag", "name"), CASES)
 def test_every_path_flag_refuses_every_os_error_in_one_line(flag, name, tmp_path, monkeypatch, capsys):
-    from quadpilot.sitl import _start_simulator
+    from quadpilot.sitl.simulator_process import start_simulator
 
     c = _ctx(tmp_path)
     want = expected(name, flag)
@@ -317,8 +317,8 @@ def test_every_path_flag_refuses_every_os_error_in_one_line(flag, name, tmp_path
     else:  # ENOSPC: the work is done, the write at the end fails
         path = str(c.d / "full" / "out")
         if flag.id == "quad-sitl --trace":
-            sim = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
-            proc, address = _start_simulator([*sim, "--episodes", "1"])
+            sim = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
+            proc, address = start_simulator([*sim, "--episodes", "1"])
             assert proc is not None, address
             extra.append(proc)
             c.port = int(address.rsplit(":", 1)[1])

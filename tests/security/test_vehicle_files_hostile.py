@@ -147,7 +147,8 @@ def test_hostile_rotor_metadata_is_one_line(rotors):
     a ValueError of one short line."""
     import dataclasses
 
-    from quadpilot.core.params import SEED_VEHICLE, VehicleParams
+    from quadpilot.core.params import VehicleParams
+    from quadpilot.core.vehicle_file import SEED_VEHICLE
 
     d = {**dataclasses.asdict(SEED_VEHICLE), "rotors": rotors}
     with pytest.raises(ValueError) as e:

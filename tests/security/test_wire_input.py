@@ -27,10 +27,9 @@ from pymavlink.dialects.v20 import common as mavlink2
 from quadpilot.autopilot.flight_log import episode_summary
 from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.core.observation import HOVER_LAYOUT, build_observation
-from quadpilot.firmware_sim import sensors
-from quadpilot.firmware_sim.sim import TIME_ORIGIN_US, Plant, SimConfig, Simulator
 from quadpilot.link import transport, wire
 from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.simulator import TIME_ORIGIN_US, Plant, SimConfig, Simulator, sensors
 from quadpilot.sitl import SHIPPED_HOVER
 
 HOME = wire.Home()

@@ -183,7 +183,7 @@ BARO_FIELDS = 512 | 2048 | 4096  # HIL_SENSOR_UPDATED_ABS_PRESSURE, _PRESSURE_AL
 def sensor_send_with_baro(*a, **kw):
     """RotorPy's HIL_SENSOR (time, acc, gyro, mag, abs_pressure, diff_pressure, pressure_alt,
     temperature, fields_updated=...), its barometer fields filled from the step's height."""
-    from quadpilot.firmware_sim.sensors import isa_pressure_hpa, isa_temperature_c
+    from quadpilot.simulator.sensors import isa_pressure_hpa, isa_temperature_c
 
     a = list(a)
     alt = got["height"]
@@ -206,7 +206,7 @@ steady = ConstantWind(*(float(v) for v in args.wind.split(",")))
 gusts = SinusoidWind(amplitudes=np.full(3, np.sqrt(2.0) * args.gust), frequencies=np.array(GUST_HZ))
 hit_dv, hit_step = 0.0, -1
 if args.impulse:  # quad-sitl's --impulse, read and bounded as quad-sitl reads it, at the same step
-    from quadpilot.firmware_sim.cli import _impulse
+    from quadpilot.simulator.cli import _impulse
 
     hit_dv, at = _impulse(args.impulse)
     hit_step = max(1, round(at * args.rate_hz))

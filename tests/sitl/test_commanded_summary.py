@@ -4,7 +4,7 @@ would be a number about nothing."""
 
 from pathlib import Path
 
-from quadpilot.sitl_node import print_summary
+from quadpilot.sitl.summary import print_summary
 
 BASE = {
     "episodes": 1,

@@ -10,9 +10,9 @@ import pytest
 from pymavlink import mavutil
 
 from quadpilot.autopilot.node import Node, NodeConfig
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.link import wire
 from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.simulator import SimConfig, Simulator
 from quadpilot.sitl import SHIPPED_HOVER
 
 pytestmark = pytest.mark.sitl

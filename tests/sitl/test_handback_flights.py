@@ -1,4 +1,4 @@
-"""Faults a flight meets, flown against our own simulator process (`quadpilot.firmware_sim`), in
+"""Faults a flight meets, flown against our own simulator process (`quadpilot.simulator`), in
 lockstep: bad states (a zero quaternion, spoiled in flight by `state_faults.StateFaultProxy`) are
 flown blind and the policy gets the vehicle back (`runtime.safety`: hand-over, hand-back); and a
 simulator that stalls for 2 s mid-flight is waited for, because in lockstep time is the simulator's
@@ -22,7 +22,8 @@ from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.core.mission import judge
 from quadpilot.link.frames import Home
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.sitl import SHIPPED_HOVER, _start_simulator, main
+from quadpilot.sitl import SHIPPED_HOVER, main
+from quadpilot.sitl.simulator_process import start_simulator
 
 pytestmark = pytest.mark.sitl
 H = Home()
@@ -35,8 +36,8 @@ STEPS = 500
 @pytest.fixture
 def simulator(tmp_path):
     stats = tmp_path / "sim.json"
-    cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
-    proc, address = _start_simulator([*cmd, "--episodes", "1", "--json", str(stats)])
+    cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
+    proc, address = start_simulator([*cmd, "--episodes", "1", "--json", str(stats)])
     assert proc is not None, address
     yield proc, int(address.rsplit(":", 1)[1]), stats
     stop(proc)
@@ -125,8 +126,8 @@ def test_a_simulator_stalled_for_two_seconds_in_lockstep_is_waited_for(tmp_path,
     meets the hover rule. (Before: 'state stream silent' after 1 s of host time with quad-sitl, 0.1 s with
     NodeConfig's default, and the flight failed.)"""
     proto = "tcp" if via.startswith("quad-sitl") else "udp"
-    cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", f"{proto}:127.0.0.1:0"]
-    proc, address = _start_simulator([*cmd, "--episodes", "1", "--lockstep-timeout", "30"])
+    cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", f"{proto}:127.0.0.1:0"]
+    proc, address = start_simulator([*cmd, "--episodes", "1", "--lockstep-timeout", "30"])
     assert proc is not None, address
     port = int(address.rsplit(":", 1)[1])
     stalled = threading.Event()

@@ -9,7 +9,7 @@ import threading
 
 import pytest
 
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
+from quadpilot.simulator import SimConfig, Simulator
 from quadpilot.sitl import main as quad_sitl
 
 pytestmark = pytest.mark.sitl

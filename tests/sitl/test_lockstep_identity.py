@@ -35,7 +35,7 @@ import pytest
 from quadpilot.autopilot.flight_log import episode_summary
 from quadpilot.autopilot.node import Node, NodeConfig
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.sitl import _start_simulator
+from quadpilot.sitl.simulator_process import start_simulator
 
 POLICY = Path(__file__).resolve().parents[2] / "models" / "hover" / "policy.onnx"
 HEARTBEAT = 0
@@ -89,8 +89,8 @@ def _msgid(raw: bytes) -> int:
 def fly(flags: tuple, seed: int, duration_s: float = 3.0) -> dict:
     """Fly one episode; the four digests of the module docstring."""
     record = Path(tempfile.mkdtemp(prefix="lockstep-identity-")) / "sim.json"
-    cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
-    proc, address = _start_simulator([*cmd, "--episodes", "1", "--seed", str(seed), "--json", str(record), *flags])
+    cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--listen", "tcp:127.0.0.1:0"]
+    proc, address = start_simulator([*cmd, "--episodes", "1", "--seed", str(seed), "--json", str(record), *flags])
     assert proc is not None, address
     frames: list[tuple[str, bytes]] = []
     try:

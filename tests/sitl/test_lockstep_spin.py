@@ -10,9 +10,9 @@ import threading
 import pytest
 
 from quadpilot.autopilot.node import NODE_SYSTEM_ID, Node, NodeConfig
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.link import spin, transport
 from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.simulator import SimConfig, Simulator
 from quadpilot.sitl import SHIPPED_HOVER
 
 
@@ -87,13 +87,14 @@ def _node_windows(monkeypatch) -> set:
 
 def test_spin_us_sets_both_sides_windows(monkeypatch, tmp_path):
     from quadpilot import sitl
-    from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
+    from quadpilot.simulator import build_sim_parser, config_from_args
+    from quadpilot.sitl import simulator_process
 
     assert config_from_args(build_sim_parser().parse_args(["--spin-us", "250"])).spin_s == pytest.approx(250e-6)
     assert config_from_args(build_sim_parser().parse_args([])).spin_s == spin.LOCKSTEP_SPIN_S
     commands = []
-    real_simulator = sitl._Simulator
-    monkeypatch.setattr(sitl, "_Simulator", lambda cmd: commands.append(cmd) or real_simulator(cmd))
+    real_simulator = simulator_process.SimulatorProcess
+    monkeypatch.setattr(simulator_process, "SimulatorProcess", lambda cmd: commands.append(cmd) or real_simulator(cmd))
     windows = _node_windows(monkeypatch)
     fly = ["--episodes", "1", "--duration", "0.2", "--gcs", "none", "--json", str(tmp_path / "s.json")]
     assert sitl.main(["--spin-us", "250", *fly]) == 0

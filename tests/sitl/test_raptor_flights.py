@@ -21,7 +21,7 @@ HERE = Path(__file__).parent
 HOVER_BAR_M = 0.10
 YAW_RATE_RAD_S = 0.2  # core.mission.YAW_RATE_TOLERANCE_RAD_S
 HEADING_DEG = 10.0
-SIM = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only"]
+SIM = [sys.executable, "-m", "quadpilot.simulator", "--sim-only"]
 NODE = ["raptor:foundation", "--node-only", "--duration", "3", "--gcs", "none"]
 
 

@@ -35,7 +35,7 @@ from test_rotorpy import SIH, WINDOW_S, RotorPyFlight, fly, rotorpy_target, roto
 from quadpilot.autopilot.dead_reckoning import InertialEstimate
 from quadpilot.core.frames import rotmat_to_euler
 from quadpilot.core.mission import SUCCESS_TOLERANCE_M, window_success
-from quadpilot.firmware_sim.records import TOUCHDOWN_MAX_SPEED, TOUCHDOWN_MAX_TILT_DEG
+from quadpilot.simulator.records import TOUCHDOWN_MAX_SPEED, TOUCHDOWN_MAX_TILT_DEG
 
 pytestmark = pytest.mark.sitl
 MAX_TILT_DEG = 60.0

@@ -1,4 +1,4 @@
-"""Sensor faults (`firmware_sim.faults`, `--sensor-fault`) against a real node flying the shipped hover
+"""Sensor faults (`simulator.faults`, `--sensor-fault`) against a real node flying the shipped hover
 policy, in lockstep (the same flight every run): that the fault reached the wire, what the node did
 (flew on, flew blind, handed over to the fallback, failed safe) and how the flight ended.
 
@@ -15,10 +15,10 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.autopilot.flight_log import episode_summary
 from quadpilot.autopilot.node import Node, NodeConfig
-from quadpilot.firmware_sim.faults import FaultSpecError, SensorFault, parse_faults
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
 from quadpilot.runtime.safety import HAND_BACK_HOLD_S
+from quadpilot.simulator import SimConfig, Simulator
+from quadpilot.simulator.faults import FaultSpecError, SensorFault, parse_faults
 from quadpilot.sitl import SHIPPED_HOVER
 from quadpilot.sitl import main as quad_sitl
 

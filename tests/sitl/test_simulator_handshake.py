@@ -11,9 +11,9 @@ from pymavlink.dialects.v10 import common as mavlink1
 from pymavlink.dialects.v20 import common as mavlink2
 
 from quadpilot.autopilot.node import NODE_COMPONENT_ID, NODE_SYSTEM_ID
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.link import wire
 from quadpilot.link.transport import SIM_COMPONENT_ID, SIM_SYSTEM_ID
+from quadpilot.simulator import SimConfig, Simulator
 
 pytestmark = pytest.mark.sitl
 

@@ -18,9 +18,10 @@ import pytest
 
 from quadpilot.autopilot.flight_log import episode_summary
 from quadpilot.autopilot.node import Node, NodeConfig
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
-from quadpilot.sitl import SHIPPED_HOVER, _start_simulator, main
+from quadpilot.simulator import SimConfig, Simulator
+from quadpilot.sitl import SHIPPED_HOVER, main
+from quadpilot.sitl.simulator_process import start_simulator
 
 pytestmark = pytest.mark.sitl
 KEY = bytes(range(32))
@@ -37,8 +38,8 @@ def assert_every_command_valid(log=None, sim_dropped=None):
 
 def sim_process(*flags, tmp_path):
     stats = tmp_path / "sim.json"
-    cmd = [sys.executable, "-m", "quadpilot.firmware_sim", "--sim-only", "--json", str(stats), *flags]
-    proc, address = _start_simulator(cmd)
+    cmd = [sys.executable, "-m", "quadpilot.simulator", "--sim-only", "--json", str(stats), *flags]
+    proc, address = start_simulator(cmd)
     assert proc is not None, address
     return proc, address, stats
 

@@ -1,4 +1,4 @@
-"""Closed loop over real loopback TCP: the simulator (firmware_sim) in a thread or its own process,
+"""Closed loop over real loopback TCP: the simulator (simulator) in a thread or its own process,
 the node (runtime) flying the shipped hover ONNX file through the safety monitor.
 
 Parity (lockstep, noise off): the SITL trajectory equals an in-process loop of the same policy on
@@ -17,10 +17,11 @@ from pymavlink.dialects.v20 import common as mavlink
 from quadpilot.autopilot.node import Node, NodeConfig, heading_within_reach
 from quadpilot.core import dynamics
 from quadpilot.core.observation import build_observation
-from quadpilot.core.params import ParamBatch, get_preset
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
+from quadpilot.core.params import ParamBatch
+from quadpilot.core.vehicle_file import get_preset
 from quadpilot.link import wire
 from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.simulator import SimConfig, Simulator
 from quadpilot.sitl import SHIPPED_HOVER, main
 
 pytestmark = pytest.mark.sitl
@@ -179,7 +180,7 @@ def test_losing_the_simulator_mid_flight_latches_the_failsafe_within_150_ms(faul
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     sim = subprocess.Popen(
-        [sys.executable, "-m", "quadpilot.firmware_sim", "--listen", f"tcp:127.0.0.1:{port}", "--realtime"],
+        [sys.executable, "-m", "quadpilot.simulator", "--listen", f"tcp:127.0.0.1:{port}", "--realtime"],
         stdout=subprocess.DEVNULL,
     )
     try:

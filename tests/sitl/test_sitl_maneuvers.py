@@ -20,13 +20,14 @@ def _fly(tmp_path, *args) -> dict:
 
 
 def test_a_maneuver_asks_the_simulator_for_a_start_at_rest_at_home_unless_told_otherwise():
-    from quadpilot.sitl import _sim_args, build_parser
+    from quadpilot.sitl.cli import build_parser
+    from quadpilot.sitl.options import sim_args
 
-    rest = _sim_args(build_parser().parse_args(["--maneuver", "step"]))
+    rest = sim_args(build_parser().parse_args(["--maneuver", "step"]))
     assert sorted(rest) == ["--init-pos-radius=0", "--init-tilt=0", "--init-vel=0"]
-    rest = _sim_args(build_parser().parse_args(["--maneuver", "step", "--init-tilt", "5"]))
+    rest = sim_args(build_parser().parse_args(["--maneuver", "step", "--init-tilt", "5"]))
     assert sorted(rest) == ["--init-pos-radius=0", "--init-tilt=5", "--init-vel=0"]
-    assert _sim_args(build_parser().parse_args([])) == []
+    assert sim_args(build_parser().parse_args([])) == []
 
 
 def test_a_step_starts_at_rest_at_home_and_is_measured(tmp_path, capsys):

@@ -9,8 +9,8 @@ import pytest
 
 from quadpilot.autopilot.node import Node, NodeConfig, heading_within_reach
 from quadpilot.core.observation import build_observation
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.simulator import SimConfig, Simulator
 from quadpilot.sitl import SHIPPED_HOVER
 
 pytestmark = pytest.mark.sitl

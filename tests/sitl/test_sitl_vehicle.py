@@ -10,8 +10,9 @@ import pytest
 
 import quadpilot.sitl as sitl
 from quadpilot.core.vehicle_file import VEHICLES_DIR, load_vehicle_file
-from quadpilot.firmware_sim.sim import build_sim_parser, config_from_args
 from quadpilot.runtime import load_policy
+from quadpilot.simulator import build_sim_parser, config_from_args
+from quadpilot.sitl import simulator_process
 
 pytest.importorskip("torch")
 pytestmark = pytest.mark.sitl
@@ -47,7 +48,7 @@ def test_a_policy_trained_on_a_vehicle_file_exports_that_vehicle(heavy):
     assert load_policy(onnx_path, "numpy").info.vehicle == vehicle
 
 
-class _Recorder(sitl._Simulator):
+class _Recorder(simulator_process.SimulatorProcess):
     """The simulator process as quad-sitl starts it, with the configuration its flags give (read
     while any temporary vehicle file still exists)."""
 
@@ -62,7 +63,7 @@ class _Recorder(sitl._Simulator):
 @pytest.fixture
 def recorder(monkeypatch):
     _Recorder.configs = []
-    monkeypatch.setattr(sitl, "_Simulator", _Recorder)
+    monkeypatch.setattr(simulator_process, "SimulatorProcess", _Recorder)
     return _Recorder.configs
 
 

@@ -10,10 +10,10 @@ import threading
 import pytest
 
 from quadpilot.autopilot.node import Node, NodeConfig
-from quadpilot.firmware_sim.faults import parse_faults
-from quadpilot.firmware_sim.records import TOUCHDOWN_MAX_SPEED
-from quadpilot.firmware_sim.sim import SimConfig, Simulator
 from quadpilot.runtime import SafetyMonitor, load_policy
+from quadpilot.simulator import SimConfig, Simulator
+from quadpilot.simulator.faults import parse_faults
+from quadpilot.simulator.records import TOUCHDOWN_MAX_SPEED
 from quadpilot.sitl import SHIPPED_HOVER
 
 pytestmark = pytest.mark.sitl

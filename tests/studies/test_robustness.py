@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quadpilot.core.params import SEED_VEHICLE
-from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG, SimConfig
+from quadpilot.core.vehicle_file import SEED_VEHICLE
+from quadpilot.simulator import DEFAULT_WIND_DRAG, SimConfig
 from quadpilot.studies.robustness import (
     SCENARIOS,
     Cell,
@@ -27,8 +27,8 @@ from quadpilot.studies.robustness import (
     scenario_table,
     summarise,
 )
-from quadpilot.train.evaluate import evaluate
-from quadpilot.train.runs.checkpoint import load_policy
+from quadpilot.train.algorithms import load_policy
+from quadpilot.train.envs.evaluate import evaluate
 
 HOVER = Path(__file__).parents[2] / "models" / "hover" / "policy.pt"
 M = SEED_VEHICLE.mass

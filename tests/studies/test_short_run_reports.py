@@ -1,5 +1,5 @@
 """The reports of a study still come out for runs too short to have figures: a seed whose every
-evaluation episode crashed has no error (None, `train.evaluate`), and a run too short to clock a
+evaluation episode crashed has no error (None, `train.envs.evaluate`), and a run too short to clock a
 positive training time has no point on a log-scale seconds axis."""
 
 from __future__ import annotations

@@ -10,17 +10,12 @@ import torch
 
 from quadpilot.studies.learning_montage import flight_config, fly, pick_snapshots, steps_text
 from quadpilot.studies.learning_montage import main as montage
+from quadpilot.train.algorithms import load_checkpoint, load_policy
 from quadpilot.train.cli import main as train
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.runs.checkpoint import (
-    SNAPSHOTS,
-    list_snapshots,
-    load_policy,
-    save_untrained_policy,
-    snapshot_path,
-)
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.ppo.checkpoint import save_untrained_policy
+from quadpilot.train.runs.checkpoint import SNAPSHOTS, list_snapshots, snapshot_path
 
 BATCH = 64 * 16  # transitions per update with TINY
 TINY = ["--num-envs", "64", "--rollout-steps", "16", "--threads", "1", "--eval-episodes", "0", "--eval-every", "0"]

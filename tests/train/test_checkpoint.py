@@ -8,18 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
+from quadpilot.train.algorithms import load_checkpoint, load_for_resume
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
-from quadpilot.train.runs.checkpoint import (
-    LATEST,
-    PREVIOUS,
-    load_for_resume,
-    ppo_from_checkpoint,
-    save_checkpoint,
-    save_for_resume,
-)
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.ppo.checkpoint import ppo_from_checkpoint
+from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS, save_checkpoint, save_for_resume
 from quadpilot.train.runs.checks import SCHEMA, CheckpointError
 
 TINY = PPOConfig(num_envs=16, rollout_steps=16, minibatch_size=64, epochs=2, threads=1, seed=7)
@@ -111,7 +105,7 @@ def test_resumed_training_continues_bit_for_bit(tmp_path):
     )
     np.testing.assert_array_equal(straight.obs_rms.mean, resumed.obs_rms.mean)
     np.testing.assert_array_equal(straight.env.batch.state, resumed.env.batch.state)
-    assert straight.env._rng.bit_generator.state == resumed.env._rng.bit_generator.state
+    assert straight.env.rng.bit_generator.state == resumed.env.rng.bit_generator.state
 
 
 def test_rotation_keeps_the_previous_checkpoint(tmp_path):
@@ -217,7 +211,7 @@ def test_load_policy_acts_like_the_trainer(tmp_path, normalize_obs):
     deterministic actions bit for bit, with and without the observation normaliser."""
     import dataclasses
 
-    from quadpilot.train.runs.checkpoint import load_policy
+    from quadpilot.train.algorithms import load_policy
 
     cfg = dataclasses.replace(TINY, normalize_obs=normalize_obs)
     ppo = PPO(cfg, make_config("circle", episode_steps=24))
@@ -232,9 +226,10 @@ def test_load_policy_acts_like_the_trainer(tmp_path, normalize_obs):
 
 
 def test_load_policy_refuses_an_unknown_layout(tmp_path):
-    from quadpilot.train.runs.checkpoint import TrainedPolicy, checkpoint_dict
+    from quadpilot.train.algorithms import trained_policy
+    from quadpilot.train.runs.checkpoint import checkpoint_dict
 
     ckpt = checkpoint_dict(tiny("hover"))
     ckpt["obs_layout"] = {**ckpt["obs_layout"], "name": "quadpilot.obs.hover/999"}
     with pytest.raises(CheckpointError, match="hover/999"):
-        TrainedPolicy(ckpt, "x.pt")
+        trained_policy(ckpt, "x.pt")

@@ -13,9 +13,9 @@ import time
 import pytest
 import torch
 
+from quadpilot.train.algorithms import load_checkpoint, load_for_resume
 from quadpilot.train.cli import main
-from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS, load_for_resume
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS
 from quadpilot.train.runs.runlog import COLUMNS, HEADER
 
 BATCH = 64 * 16  # transitions per update with TINY

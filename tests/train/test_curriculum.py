@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from quadpilot.train.curriculum import CurriculumConfig, WaypointCurriculum
+from quadpilot.train.envs.curriculum import CurriculumConfig, WaypointCurriculum
 
 N, T, EP = 8, 10, 50  # drones, rollout steps, episode steps → settle = 5 updates
 

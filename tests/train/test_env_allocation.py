@@ -82,7 +82,7 @@ def test_a_vector_step_without_resets_allocates_only_the_arrays_it_returns(trace
         returned = obs.nbytes + reward.nbytes + terminated.nbytes + truncated.nbytes
         assert peak - returned < SMALL, f"QuadVectorEnv.step allocated {peak - returned} bytes beyond its results"
         # inside the step itself: nothing
-        peak = peak_bytes(env.batch.step_autoreset, a, env._rng)[0]
+        peak = peak_bytes(env.batch.step_autoreset, a, env.rng)[0]
         assert peak < SMALL, f"QuadBatch.step_autoreset allocated {peak} bytes"
 
 

@@ -38,9 +38,10 @@ import sys
 import numpy as np
 import pytest
 
-from quadpilot.core.params import SEED_VEHICLE, Rotor
+from quadpilot.core.params import Rotor
+from quadpilot.core.vehicle_file import SEED_VEHICLE
 from quadpilot.train.envs import QuadEnv, QuadVectorEnv, make_config
-from quadpilot.train.evaluate import evaluate
+from quadpilot.train.envs.evaluate import evaluate
 
 # the OpenBLAS core (OPENBLAS_CORETYPE, or what OpenBLAS detects without it): the digests were
 # computed with Haswell (the CI machine's OPENBLAS_CORETYPE) and are the same with SkylakeX (what
@@ -213,7 +214,7 @@ def vector_digest(name: str) -> str:
         out = env.step(_actions(kind, rng, (n, 4)))
         d.add(f"step{t}", dict(zip(("obs", "reward", "terminated", "truncated", "infos"), out, strict=True)))
     _batch_state(d, env.batch)
-    d.add("rng", env._rng.bit_generator.state)
+    d.add("rng", env.rng.bit_generator.state)
     return d.hexdigest()
 
 
@@ -235,7 +236,7 @@ def single_digest() -> str:
 
 
 def evaluate_digest() -> str:
-    """`train.evaluate` on QuadBatch.step's outputs: a zero policy and a small linear one."""
+    """`train.envs.evaluate` on QuadBatch.step's outputs: a zero policy and a small linear one."""
     d = Digest()
     w = np.random.default_rng(9).normal(0.0, 0.05, (21, 4)).astype(np.float32)
     for task, policy in (

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from quadpilot.core import mission
-from quadpilot.core.params import SEED_VEHICLE
+from quadpilot.core.vehicle_file import SEED_VEHICLE
 from quadpilot.runtime.fallback import FallbackController, FallbackGains
 from quadpilot.train.envs import QuadBatch, make_config
-from quadpilot.train.evaluate import evaluate
+from quadpilot.train.envs.evaluate import evaluate
 
 # drone: (heading offset latched by the controller in deg, yaw control on)
 DRONES = [(0.0, True), (0.0, True), (30.0, True), (-30.0, True), (0.0, False), (0.0, False)]

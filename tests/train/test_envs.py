@@ -13,8 +13,8 @@ import pytest
 from quadpilot.core.dynamics import IDX
 from quadpilot.core.frames import euler_to_rotmat
 from quadpilot.core.mission import yaw_errors
-from quadpilot.core.params import CRAZYFLIE, SEED_VEHICLE
 from quadpilot.core.reward import RewardConfig, hover_reward
+from quadpilot.core.vehicle_file import CRAZYFLIE, SEED_VEHICLE
 from quadpilot.train.envs import QuadBatch, QuadEnv, QuadVectorEnv, make_config
 
 IDS = {task: f"quadpilot.train:quadpilot/{task.capitalize()}-v0" for task in ("hover", "waypoint", "circle")}

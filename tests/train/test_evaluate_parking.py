@@ -9,7 +9,7 @@ import warnings
 
 import numpy as np
 
-from quadpilot.train import evaluate as evaluation
+from quadpilot.train.envs import evaluate as evaluation
 from quadpilot.train.envs import make_config
 
 

@@ -4,7 +4,7 @@ termination never bootstraps, truncation bootstraps from the final observation's
 import numpy as np
 import pytest
 
-from quadpilot.train.gae import compute_gae
+from quadpilot.train.ppo.gae import compute_gae
 
 
 def reference_gae(rewards, values, next_values, terminated, truncated, gamma, lam):

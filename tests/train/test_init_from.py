@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 import torch
 
+from quadpilot.train.algorithms import load_policy
 from quadpilot.train.cli import main
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPOConfig
-from quadpilot.train.retarget import _head_names
-from quadpilot.train.runs.checkpoint import load_policy, save_untrained_policy
+from quadpilot.train.ppo.checkpoint import save_untrained_policy
+from quadpilot.train.ppo.retarget import _head_names
 
 ROOT = Path(__file__).resolve().parents[2]
 ROTORPY_ORDER = str(ROOT / "benchmarks/airframes/rotorpy_hummingbird.toml")  # RotorPy numbers from front-left
@@ -116,7 +117,7 @@ def test_a_run_on_an_unbalanced_frame_starts_with_its_hover_trim(generalist, tmp
     frame's trim; from a policy trained on the asymmetric frame onto it again, nothing is added (its
     weights hold the trim already)."""
     from quadpilot.core.vehicle_file import load_vehicle_file
-    from quadpilot.train.retarget import hover_trim
+    from quadpilot.train.ppo.retarget import hover_trim
 
     asymmetric = str(ROOT / "benchmarks/airframes/asymmetric.toml")
     trim = hover_trim(load_vehicle_file(asymmetric))

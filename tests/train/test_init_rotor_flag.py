@@ -6,9 +6,9 @@ import json
 
 import pytest
 
+from quadpilot.train.algorithms import load_checkpoint
 from quadpilot.train.cli import main
 from quadpilot.train.envs import INIT_ROTOR
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
 TINY = ["--num-envs", "64", "--rollout-steps", "16", "--threads", "1", "--eval-episodes", "0"]
 

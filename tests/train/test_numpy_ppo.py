@@ -1,4 +1,4 @@
-"""The NumPy update (quadpilot.train.numpy_ppo) against torch, the reference: on random networks and
+"""The NumPy update (quadpilot.train.ppo.numpy_ppo) against torch, the reference: on random networks and
 batches (several seeds and widths, a non-zero log-std, ratios inside and outside the clip range,
 value clipping on and off, an entropy bonus, each activation) every gradient equals autograd's and a
 whole step (gradient clip and Adam) leaves the parameters and Adam's state where torch's leaves
@@ -13,11 +13,11 @@ import math
 import pytest
 import torch
 
+from quadpilot.train.algorithms import load_checkpoint
 from quadpilot.train.cli import main
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
 from quadpilot.train.runs.checkpoint import LATEST
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
 TOL = 1e-5
 # per seed: network widths and observation history, so the check covers more than the default shape
@@ -264,7 +264,7 @@ def test_a_resume_keeps_the_update_path(tmp_path, capsys):
 def test_a_network_numpy_does_not_implement_is_refused():
     ppo = make("torch")
     ppo.model.actor[1] = torch.nn.Sigmoid()
-    from quadpilot.train.numpy_ppo import NumpyPPO
+    from quadpilot.train.ppo.numpy_ppo import NumpyPPO
 
     with pytest.raises(ValueError, match="Linear layers with one Tanh, ReLU or ELU"):
         NumpyPPO(ppo.model, ppo.opt)
@@ -355,7 +355,7 @@ def test_the_numpy_update_works_in_float32_throughout(activation):
     ],
 )
 def test_an_optimiser_other_than_plain_adam_is_refused(change, says):
-    from quadpilot.train.numpy_ppo import NumpyPPO
+    from quadpilot.train.ppo.numpy_ppo import NumpyPPO
 
     ppo = make("torch")
     opt = torch.optim.Adam(ppo.model.parameters(), lr=1e-3, **change)
@@ -364,7 +364,7 @@ def test_an_optimiser_other_than_plain_adam_is_refused(change, says):
 
 
 def test_adam_over_part_of_the_model_or_sgd_or_float64_is_refused():
-    from quadpilot.train.numpy_ppo import NumpyPPO
+    from quadpilot.train.ppo.numpy_ppo import NumpyPPO
 
     ppo = make("torch")
     params = list(ppo.model.parameters())
@@ -394,7 +394,7 @@ def test_adam_over_part_of_the_model_or_sgd_or_float64_is_refused():
 def test_a_network_the_numpy_update_cannot_run_is_refused_naming_it(edit, says):
     """ELU with alpha ≠ 1, two kinds of activation, an activation last, an activation where a Linear
     belongs: each refused with what was found."""
-    from quadpilot.train.numpy_ppo import NumpyPPO
+    from quadpilot.train.ppo.numpy_ppo import NumpyPPO
 
     ppo = make("torch", actor_hidden=(16, 16), activation="tanh")
     edit(ppo.model.actor)

@@ -11,13 +11,15 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from quadpilot.core.params import CRAZYFLIE, SEED_VEHICLE
 from quadpilot.core.randomization import PRESETS, RandomizationConfig
+from quadpilot.core.vehicle_file import CRAZYFLIE, SEED_VEHICLE
+from quadpilot.train.algorithms import load_for_resume, load_policy
 from quadpilot.train.cli import main
 from quadpilot.train.envs import EnvConfig, QuadBatch, QuadVectorEnv, make_config
-from quadpilot.train.evaluate import evaluate
+from quadpilot.train.envs.evaluate import evaluate
 from quadpilot.train.ppo import PPO, PPOConfig
-from quadpilot.train.runs.checkpoint import load_for_resume, load_policy, ppo_from_checkpoint, save_for_resume
+from quadpilot.train.ppo.checkpoint import ppo_from_checkpoint
+from quadpilot.train.runs.checkpoint import save_for_resume
 
 HOVER = Path(__file__).parents[2] / "models" / "hover" / "policy.pt"
 TINY = PPOConfig(num_envs=16, rollout_steps=16, minibatch_size=64, epochs=2, threads=1, seed=7)

@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from quadpilot.core import px4_raptor as pr
-from quadpilot.core.params import Rotor, get_preset, quad_x
-from quadpilot.core.vehicle_file import resolve_vehicle
+from quadpilot.core.params import Rotor, quad_x
+from quadpilot.core.vehicle_file import get_preset, resolve_vehicle
 from quadpilot.train.cli import main
-from quadpilot.train.raptor_distill import (
+from quadpilot.train.raptor.distill import (
     DistillConfig,
     contract_commands,
     is_student_checkpoint,
@@ -113,9 +113,9 @@ def test_a_teacher_of_another_vehicle_is_refused(tmp_path, capsys):
 
 
 def test_the_checkpoint_loads_with_weights_only_and_other_files_are_refused(tmp_path):
-    from quadpilot.train.raptor_distill import checkpoint
-    from quadpilot.train.raptor_student import RaptorStudent
-    from quadpilot.train.runs.checkpoint import load_policy
+    from quadpilot.train.algorithms import load_policy
+    from quadpilot.train.raptor.distill import checkpoint
+    from quadpilot.train.raptor.student import RaptorStudent
 
     teacher = load_policy("models/hover_px4_sih/policy.pt")
     student = RaptorStudent()
@@ -155,9 +155,9 @@ def test_a_frame_the_contract_cannot_fly_is_refused_before_any_training(tmp_path
 
 def _student_checkpoint(env_config=None) -> dict:
     """A px4-raptor policy.pt's dict, untrained, for the shipped PX4 SIH teacher's environment."""
-    from quadpilot.train.raptor_distill import checkpoint
-    from quadpilot.train.raptor_student import RaptorStudent
-    from quadpilot.train.runs.checkpoint import load_policy
+    from quadpilot.train.algorithms import load_policy
+    from quadpilot.train.raptor.distill import checkpoint
+    from quadpilot.train.raptor.student import RaptorStudent
 
     env = load_policy("models/hover_px4_sih/policy.pt").env_config if env_config is None else env_config
     return checkpoint(RaptorStudent(), env, DistillConfig(), "t", {})
@@ -186,7 +186,7 @@ def test_a_student_of_another_task_or_rate_is_refused_by_the_export_in_one_line(
     import dataclasses
 
     from quadpilot.export.cli import main as export
-    from quadpilot.train.runs.checkpoint import load_policy
+    from quadpilot.train.algorithms import load_policy
 
     env = dataclasses.replace(load_policy("models/hover_px4_sih/policy.pt").env_config, **change)
     torch.save(_student_checkpoint(env), tmp_path / "p.pt")
@@ -241,8 +241,8 @@ def test_a_refused_command_leaves_no_run_directory_behind(extra, code, says, tmp
 def test_a_distillation_flight_in_which_every_drone_crashes_is_standard_json():
     import json
 
-    from quadpilot.train.raptor_distill import fly
-    from quadpilot.train.runs.checkpoint import load_policy
+    from quadpilot.train.algorithms import load_policy
+    from quadpilot.train.raptor.distill import fly
 
     cfg = load_policy("models/hover_px4_sih/policy.pt").env_config
 

@@ -7,7 +7,7 @@ import torch
 
 from quadpilot.runtime import rltools_tar as rt
 from quadpilot.runtime.gru import GruStep, OnnxGruStep, sequences
-from quadpilot.train.raptor_student import RaptorStudent
+from quadpilot.train.raptor.student import RaptorStudent
 
 
 def _student(seed: int = 0) -> RaptorStudent:

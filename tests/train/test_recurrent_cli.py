@@ -6,8 +6,8 @@ import json
 
 import pytest
 
+from quadpilot.train.algorithms import load_checkpoint
 from quadpilot.train.cli import main
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
 TINY = ["--num-envs", "16", "--rollout-steps", "32", "--threads", "1", "--eval-episodes", "4", "--eval-every", "2"]
 LSTM = ["--arch", "lstm", "--sensor-noise", "--motor-tau", "0.03"]

@@ -10,14 +10,16 @@ import numpy as np
 import pytest
 import torch
 
-from quadpilot.train import recurrent_ppo
+from quadpilot.train.algorithms import load_policy
 from quadpilot.train.envs import QuadVectorEnv, make_config
-from quadpilot.train.evaluate import evaluate
-from quadpilot.train.history import History, HistoryVectorEnv, history_dim
+from quadpilot.train.envs.evaluate import evaluate
+from quadpilot.train.envs.history import History, HistoryVectorEnv, history_dim
 from quadpilot.train.networks import RecurrentActorCritic
 from quadpilot.train.ppo import PPO, PPOConfig
-from quadpilot.train.rollout import minibatches
-from quadpilot.train.runs.checkpoint import checkpoint_dict, load_policy, ppo_from_checkpoint, save_checkpoint
+from quadpilot.train.ppo import recurrent as recurrent_ppo
+from quadpilot.train.ppo.checkpoint import ppo_from_checkpoint
+from quadpilot.train.ppo.rollout import minibatches
+from quadpilot.train.runs.checkpoint import checkpoint_dict, save_checkpoint
 
 
 def same(a: dict, b: dict) -> bool:
@@ -126,7 +128,7 @@ def test_resumed_training_continues_bit_for_bit(tmp_path, kw):
     for _ in range(2):
         straight.iterate()
     save_checkpoint(tmp_path / "c.pt", straight)
-    from quadpilot.train.runs.checkpoint_read import load_checkpoint
+    from quadpilot.train.algorithms import load_checkpoint
 
     resumed = ppo_from_checkpoint(load_checkpoint(tmp_path / "c.pt"))
     for _ in range(2):

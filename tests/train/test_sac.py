@@ -17,10 +17,10 @@ from quadpilot.export.cli import main as export_main
 from quadpilot.export.onnx_export import check_parity, export_onnx, reference_commands
 from quadpilot.modelfile.model import read_model
 from quadpilot.runtime.backends import load_policy as load_runtime_policy
+from quadpilot.train.algorithms import load_checkpoint, load_policy
 from quadpilot.train.cli import main
 from quadpilot.train.envs import make_config
-from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS, load_policy
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.runs.checkpoint import LATEST, PREVIOUS
 from quadpilot.train.sac import (
     HEADER,
     REPLAY_DIR,

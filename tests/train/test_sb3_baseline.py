@@ -17,10 +17,10 @@ import torch
 pytest.importorskip("stable_baselines3")
 
 from quadpilot.studies import matched_settings as ms
-from quadpilot.train import evaluate as evaluate_module
 from quadpilot.train import sb3_baseline as sb
 from quadpilot.train.cli import main
 from quadpilot.train.envs import EnvConfig, make_config
+from quadpilot.train.envs import evaluate as evaluate_module
 from quadpilot.train.networks import ActorCritic
 from quadpilot.train.ppo import PRESETS, PPOConfig
 from quadpilot.train.runs.runlog import HEADER, _json_safe

@@ -26,10 +26,10 @@ import numpy as np
 import pytest
 import torch
 
+from quadpilot.train.algorithms import load_checkpoint, load_policy, load_trainer
 from quadpilot.train.cli import main
 from quadpilot.train.ppo import PPO
-from quadpilot.train.runs.checkpoint import LATEST, load_policy, load_trainer, snapshot_path
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.runs.checkpoint import LATEST, snapshot_path
 from quadpilot.train.sac import SAC
 
 DATA = Path(__file__).parent / "data" / "pre_spine"
@@ -128,7 +128,7 @@ def test_two_iterations_give_the_weights_they_gave_before_the_spine(tmp_path, ki
     pinned(digest(ckpt["model"]), want)
 
 
-# The NumPy update (quadpilot.train.numpy_ppo) on the same run: pinned when it was written, with its own
+# The NumPy update (quadpilot.train.ppo.numpy_ppo) on the same run: pinned when it was written, with its own
 # machine key, since its products run in numpy's BLAS, not torch's. OpenBLAS's kernels, picked by
 # OPENBLAS_CORETYPE or detected, round differently, so the key holds the core in use and each core
 # checked has its own pin: SkylakeX (what OpenBLAS detects on the pinning machine) gives the weights

@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 
-from quadpilot.core.params import SEED_VEHICLE, Rotor, unit_layout
+from quadpilot.core.params import Rotor, unit_layout
+from quadpilot.core.vehicle_file import SEED_VEHICLE
 from quadpilot.viz.geometry import body_points, rotor_discs
 
 PLUS = dataclasses.replace(

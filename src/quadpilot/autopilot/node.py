@@ -105,7 +105,7 @@ from .node_config import NodeConfig
 
 UDP_LOCKSTEP_SILENCE_S = 5.0
 """s of host time a lockstep flight over UDP waits for the next state: the same as our simulator
-waits for the node (`firmware_sim.config.SimConfig.lockstep_timeout_s`)."""
+waits for the node (`simulator.config.SimConfig.lockstep_timeout_s`)."""
 
 
 class NodeError(RuntimeError):

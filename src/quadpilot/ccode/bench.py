@@ -2,7 +2,7 @@
 floating-point work of one inference as the generated code does it (`operation_count`), and what
 that work would take on a Cortex-M4F (`cortex_m4_estimate`, from `CORTEX_M4_CYCLES`).
 
-    code = cgen.generate(info, weights)
+    code = generate.generate(info, weights)
     bench_c = bench_source(info)                                # compiles with policy.c
     cortex_m4_estimate(operation_count(code.network))           # cycles and µs at 168 MHz
 """

@@ -26,7 +26,7 @@ the header and the comments comes from this runtime's own tables (the observatio
 `core.observation` found by name, `model.ACTION_MEANING`, the generator's fixed text), and the few
 strings the header repeats from the metadata are checked again here, as `model.read_model` checks
 them: the task is one of `core.mission.TASKS`, the source SHA-256 is 64 lowercase hex digits, the
-vehicle name a plain identifier (`model.VEHICLE_NAME_PATTERN`). A ModelInfo that fails any of these
+vehicle name a plain one (`core.vehicle_file.NAME_PATTERN`). A ModelInfo that fails any of these
 (one not made by `read_model`) is refused with a ModelContractError.
 
 How it is written, and why:
@@ -61,11 +61,11 @@ import numpy as np
 
 from quadpilot.core.mission import TASKS
 from quadpilot.core.observation import ObsLayout, get_layout
+from quadpilot.core.vehicle_file import NAME_PATTERN
 from quadpilot.modelfile.model import (
     ACTION_MEANING,
     NUM_MOTORS,
     SHA256_PATTERN,
-    VEHICLE_NAME_PATTERN,
     ModelContractError,
     ModelInfo,
     initializer_arrays,
@@ -118,7 +118,7 @@ class CCode:
         """Write policy.h and policy.c into `directory` (created), atomically; returns both paths."""
         from pathlib import Path
 
-        from quadpilot.console import atomic_write
+        from quadpilot.atomic_files import atomic_write
 
         directory = Path(directory)
         paths = []
@@ -180,7 +180,7 @@ def _facts(info: ModelInfo) -> _Facts:
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         raise refuse("the training step count is not a count")
     vehicle = info.vehicle
-    if not (isinstance(vehicle.name, str) and VEHICLE_NAME_PATTERN.fullmatch(vehicle.name)):
+    if not (isinstance(vehicle.name, str) and NAME_PATTERN.fullmatch(vehicle.name)):
         raise refuse("the vehicle name is not a plain identifier")
     values = {f.name: float(getattr(vehicle, f.name)) for f in fields(vehicle) if f.name not in ("name", "rotors")}
     rotors = [(float(r.x), float(r.y), "ccw" if r.spin == "ccw" else "cw") for r in vehicle.rotors]

@@ -1,5 +1,5 @@
-"""The bare-metal test image around a generated C kernel (`cgen`): the harness's C and the linker
-script that `ctarget` cross-compiles with policy.c into an ELF for an emulated Cortex-M.
+"""The bare-metal test image around a generated C kernel (`generate`): the harness's C and the
+linker script that `target` cross-compiles with policy.c into an ELF for an emulated Cortex-M.
 
     text = harness_source(info, net)      # harness.c: vector table, startup, semihosting, main
     script = LINKER_SCRIPT                # cortex-m.ld
@@ -18,11 +18,11 @@ What the image does when it boots (in QEMU, `qemu-system-arm -M mps2-an386 -nogr
 qp_in.bin, one record per step (little-endian): uint32 flags (bit 0: zero the recurrent state
 before this step; ignored by a feed-forward policy), float32 obs[QP_OBS_DIM].
 qp_out.bin, one record per input record: float32 motors[4], uint32 ticks[P], the SysTick ticks
-of the call (P = 1), or, in a profile build, of the call and of each stage of `cgen.stages` (the
+of the call (P = 1), or, in a profile build, of the call and of each stage of `generate.stages` (the
 kernel's QP_PROBE hooks). Then a trailer of uint32: TRAILER_MAGIC, the record count, the
 kernel's own stack (bytes, measured by painting below the caller's stack pointer), the whole
 image's stack high-water mark (bytes), the ticks of a calibration loop and that loop's instruction
-count (`CALIBRATION_INSTRUCTIONS`), the SysTick ticks per instruction being what `ctarget` derives
+count (`CALIBRATION_INSTRUCTIONS`), the SysTick ticks per instruction being what `target` derives
 from it.
 
 Exit status: 0 golden vectors matched (and qp_in.bin, if present, fully processed); 1 a golden
@@ -74,7 +74,7 @@ class KernelCall:
 
 
 def kernel_call(net: Network) -> KernelCall:
-    """The calling convention of `net`'s generated kernel (see `cgen`'s header text)."""
+    """The calling convention of `net`'s generated kernel (see `generate`'s header text)."""
     if net.lstm is not None:
         return KernelCall(
             state="static float qp_h[QP_HIDDEN], qp_c[QP_HIDDEN];",
@@ -102,7 +102,7 @@ extern volatile uint32_t qp_probe[];
 
 def harness_source(info: ModelInfo, net: Network, probes: int = 0) -> str:
     """harness.c for the kernel of `net`, with the golden vectors of `info`. `probes`: the number of
-    stages a profile build times (`len(cgen.stages(net))`), 0 for the plain image."""
+    stages a profile build times (`len(generate.stages(net))`), 0 for the plain image."""
     kc = kernel_call(net)
     k = len(info.golden_obs)
     ticks = 1 + probes

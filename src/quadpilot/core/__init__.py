@@ -1,9 +1,12 @@
-"""NumPy-only foundations shared by training, runtime and simulator: vehicle parameters, batched
-dynamics, frames, the observation layout, reward and termination maths. Imports nothing of ours."""
+"""NumPy-only foundations shared by training, runtime and simulator: vehicle parameters and vehicle
+files, batched dynamics, frames, the observation layout, reward and termination maths, the mission
+(task, start, target over time, success judge), sensor noise, randomisation, PX4 mc_raptor's
+observation contract. Imports nothing of ours."""
 
 from .dynamics import DT, MOTOR_NAMES, STATE_DIM, STATE_NAMES, action_to_command, hover_command, step
 from .observation import HOVER_LAYOUT, LAYOUTS, TRACK_LAYOUT, ObsLayout, build_observation, get_layout
-from .params import CRAZYFLIE, PRESETS, SEED_VEHICLE, ParamBatch, VehicleParams, get_preset
+from .params import ParamBatch, VehicleParams
+from .vehicle_file import CRAZYFLIE, PRESETS, SEED_VEHICLE, get_preset
 
 __all__ = [
     "CRAZYFLIE",

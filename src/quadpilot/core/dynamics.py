@@ -176,6 +176,23 @@ def _derived(params: ParamBatch, h: float, dtype) -> _Derived:
     return cache[key]
 
 
+def lag_factors(motor_tau, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(decay, 2A, B), float64 per drone, of the motor lag `motor_tau` (s, per drone) over a substep
+    of h s; every plant step (this module's and the simulator's `single_step`) takes them from here.
+
+    Exact discretisation of dω/dt = (ω_cmd − ω)/τ over h: ω ← ω_cmd + decay·(ω − ω_cmd), decay =
+    e^(−h/τ). τ = 0 gives a decay of exactly 0, so ω = ω_cmd bit for bit, as for a lag-free batch
+    (the form ω + (1 − e^(−h/τ))·(ω_cmd − ω) rounds to one ulp away from ω_cmd). The thrust over the
+    substep is the mean of ω² along that exponential, not the end's ω² (module docstring): with
+    d = ω − ω_cmd at the start, ω(t) = ω_cmd + d·e^(−t/τ) and mean ω² = ω_cmd² + 2·A·ω_cmd·d + B·d²,
+    A = τ/h·(1 − e^(−h/τ)), B = τ/2h·(1 − e^(−2h/τ)); τ = 0: A = B = 0, the command's ω² at once."""
+    tau = np.asarray(motor_tau, dtype=np.float64)
+    e = np.exp(-h / np.where(tau > 0, tau, 1.0))
+    decay = np.where(tau > 0, e, 0.0)
+    over = np.where(tau > 0, tau / h, 0.0)
+    return decay, 2.0 * over * (1.0 - e), 0.5 * over * (1.0 - e * e)
+
+
 class _Derived:
     """Per-drone constants used by every substep, cast to the state dtype once per call."""
 
@@ -192,19 +209,7 @@ class _Derived:
         self.u_min = c(p.omega_min / p.omega_max)[:, None] if np.any(p.omega_min > 0) else 0.0
         self.lag = bool(np.any(p.motor_tau > 0))
         if self.lag:
-            tau = np.asarray(p.motor_tau, dtype=np.float64)
-            # exact discretisation of dω/dt = (ω_cmd − ω)/τ over h: ω ← ω_cmd + e^(−h/τ)·(ω − ω_cmd).
-            # τ = 0 gives a decay of exactly 0, so ω = ω_cmd bit for bit, as for a lag-free batch
-            # (the form ω + (1 − e^(−h/τ))·(ω_cmd − ω) rounds to one ulp away from ω_cmd).
-            self.decay = c(np.where(tau > 0, np.exp(-h / np.where(tau > 0, tau, 1.0)), 0.0))
-            # the thrust over the substep: the mean of ω² along that exponential, not the end's ω²
-            # (module docstring). With d = ω − ω_cmd at the start, ω(t) = ω_cmd + d·e^(−t/τ) and
-            # mean ω² = ω_cmd² + 2·A·ω_cmd·d + B·d², A = τ/h·(1 − e^(−h/τ)), B = τ/2h·(1 − e^(−2h/τ));
-            # τ = 0: A = B = 0, the command's ω² at once
-            e = np.exp(-h / np.where(tau > 0, tau, 1.0))
-            over = np.where(tau > 0, tau / h, 0.0)
-            self.lag_2a = c(2.0 * over * (1.0 - e))
-            self.lag_b = c(0.5 * over * (1.0 - e * e))
+            self.decay, self.lag_2a, self.lag_b = (c(a) for a in lag_factors(p.motor_tau, h))
         self.drag = bool(np.any(p.drag > 0))
         if self.drag:
             self.drag_over_m = c(p.drag / p.mass)

@@ -11,21 +11,44 @@ import math
 import numpy as np
 
 
+def rotation_entries(sin, cos, roll, pitch, yaw) -> tuple[tuple, tuple, tuple]:
+    """The body → world rotation R = Rz(ψ)·Ry(θ)·Rx(φ) as three rows of three entries, from roll,
+    pitch and yaw as plain floats or arrays alike, with `sin` and `cos` to suit them (math's, NumPy's);
+    the entries are then floats or arrays. The one statement of the matrix: `euler_to_rotmat` and the
+    observations (`core.observation.observation_values`, `core.px4_raptor`) compute it here;
+    `euler_to_rotmat_rows` is the same operations in place."""
+    sr, cr, sp, cp, sy, cy = sin(roll), cos(roll), sin(pitch), cos(pitch), sin(yaw), cos(yaw)
+    return (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+
+
+def to_body(rot, w) -> tuple:
+    """Rᵀ·w, the world vector w (three numbers, or three arrays) in the body frame, for rotation
+    entries `rot` (`rotation_entries`), each component summed as `world_to_body`'s einsum sums it:
+    the products in order onto a zero, R_2i·w_2 + (R_1i·w_1 + (R_0i·w_0 + 0)), the zero turning a −0
+    product into +0. So the same bits, a NaN's sign included (the einsum keeps the operands in this
+    order; in the other, ((0 + R_0i·w_0) + …), the numbers are the same but a NaN may take the other
+    sign)."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rot
+    wx, wy, wz = w
+    return (
+        r20 * wz + (r10 * wy + (r00 * wx + 0.0)),
+        r21 * wz + (r11 * wy + (r01 * wx + 0.0)),
+        r22 * wz + (r12 * wy + (r02 * wx + 0.0)),
+    )
+
+
 def euler_to_rotmat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Body → world rotation matrices, shape (..., 3, 3), from ZYX Euler angles of shape (...)."""
-    sr, cr = np.sin(roll), np.cos(roll)
-    sp, cp = np.sin(pitch), np.cos(pitch)
-    sy, cy = np.sin(yaw), np.cos(yaw)
-    out = np.empty((*np.shape(sr), 3, 3), np.result_type(sr, sp, sy))  # filled in place: no stack
-    out[..., 0, 0] = cy * cp
-    out[..., 0, 1] = cy * sp * sr - sy * cr
-    out[..., 0, 2] = cy * sp * cr + sy * sr
-    out[..., 1, 0] = sy * cp
-    out[..., 1, 1] = sy * sp * sr + cy * cr
-    out[..., 1, 2] = sy * sp * cr - cy * sr
-    out[..., 2, 0] = -sp
-    out[..., 2, 1] = cp * sr
-    out[..., 2, 2] = cp * cr
+    rows = rotation_entries(np.sin, np.cos, roll, pitch, yaw)
+    r01 = rows[0][1]  # cy·sp·sr − sy·cr: the shape and type of all three angles'
+    out = np.empty((*np.shape(r01), 3, 3), np.result_type(r01))  # filled in place: no stack
+    for i, row in enumerate(rows):
+        for j, entry in enumerate(row):
+            out[..., i, j] = entry
     return out
 
 
@@ -120,7 +143,7 @@ def body_to_world(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
 def scalar_trig_agrees(samples: int = 256) -> bool:
     """math.sin, math.cos and math.floor give NumPy's bits on one-element float64 arrays at
     `samples` angles over ±4π and a few special ones. The scalar forms of one vehicle's step and
-    observation (`firmware_sim.single_step`, `runtime.observation_one`) compute only where this
+    observation (`simulator.single_step`, `runtime.observation_one`) compute only where this
     holds: `math` is the C library's, while `np.sin` may be NumPy's own SIMD code on some CPUs."""
     rng = np.random.default_rng(20240611)
     angles = np.concatenate([rng.uniform(-4 * math.pi, 4 * math.pi, samples), [0.0, -0.0, math.pi, -math.pi, 1e-300]])

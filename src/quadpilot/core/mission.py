@@ -22,7 +22,7 @@ the tilt). The heading error is the yaw angle minus the commanded heading, wrapp
 the commanded heading is the heading at the start of the episode unless a caller gives one. A
 vehicle that holds its position while spinning, or that settles facing elsewhere, has not held
 still. `window_success` is the one rule: `judge` (SITL, the node, quad-sitl) and the training
-environments' `QuadBatch.success` and `train.evaluate` (eval.json) all call it.
+environments' `QuadBatch.success` and `train.envs.evaluate` (eval.json) all call it.
 """
 
 from __future__ import annotations

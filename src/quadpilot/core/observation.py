@@ -1,7 +1,11 @@
-"""The observation layout: one named table, and the one function that builds observations.
+"""The observation layout: one named table, and the one function that computes observations.
 
-The environments and the runtime both call `build_observation`, and the layout name travels in the
-checkpoint and in the ONNX metadata; a runtime refuses a layout it does not know.
+`observation_values` is the layout's arithmetic, written once over any number type: `build_observation`
+runs it on the columns of a batch, `runtime.observation_one` on the plain floats of the node's one
+vehicle (NumPy's per-call overhead dominates on one drone), and `ObservationBuilder` is the same
+operations in place, for the training batches that build every step without allocating
+(tests/core/test_inplace_equivalence.py holds it to `build_observation` bit for bit). The layout name
+travels in the checkpoint and in the ONNX metadata; a runtime refuses a layout it does not know.
 
 Why not the raw 12 states: absolute position would tie a policy to the place it was trained at
 (hovering at (0, 0, 10) would be out of distribution for a policy trained at (0, 0, 2)), so
@@ -26,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import euler_to_rotmat, euler_to_rotmat_rows, world_to_body, world_to_body_rows
-from .state import ATT, PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
+from .frames import euler_to_rotmat_rows, rotation_entries, to_body, world_to_body_rows
+from .state import ATT, POS, RATES, STATE_DIM, VEL
 
 
 @dataclass(frozen=True)
@@ -109,7 +113,7 @@ def build_observation(
     `target_vel` is given. state (N, 12); target_pos and target_vel (N, 3) or (3,).
     heading: the commanded heading ψ_cmd in rad (ENU yaw, 0 = east), a scalar or (N,), for the
     version-2 layouts; None: 0, the world frame (version 1, or version 2 commanded to face east).
-    Written into `out` if given (its dtype wins), else float32."""
+    Written into `out` if given (its dtype wins), else float32. `observation_values` on the columns."""
     n = state.shape[0]
     if state.ndim != 2 or state.shape[1] != STATE_DIM:
         raise ValueError(f"state must have shape (N, {STATE_DIM}), got {state.shape}")
@@ -118,23 +122,44 @@ def build_observation(
         out = np.empty((n, layout.dim), dtype=np.float32)
     elif out.shape != (n, layout.dim):
         raise ValueError(f"out must have shape ({n}, {layout.dim}), got {out.shape}")
-    rot = euler_to_rotmat(state[:, ROLL], state[:, PITCH], state[:, YAW])
-    out[:, 0:3] = world_to_body(rot, state[:, POS] - target_pos)
-    out[:, 3:6] = world_to_body(rot, state[:, VEL])
-    if heading is None:
-        out[:, 6:15] = rot.reshape(n, 9)
-    else:  # Rz(−ψ_cmd)·R: the first two rows turned by −ψ_cmd, the third unchanged
-        c = np.cos(heading)
-        s = np.sin(heading)
-        c = np.broadcast_to(c, (n,))[:, None]
-        s = np.broadcast_to(s, (n,))[:, None]
-        out[:, 6:9] = c * rot[:, 0, :] + s * rot[:, 1, :]
-        out[:, 9:12] = -s * rot[:, 0, :] + c * rot[:, 1, :]
-        out[:, 12:15] = rot[:, 2, :]
-    out[:, 15:18] = state[:, RATES]
-    if target_vel is not None:
-        out[:, 18:21] = world_to_body(rot, np.broadcast_to(target_vel, (n, 3)))
+    tv = None if target_vel is None else np.asarray(target_vel).T
+    values = observation_values(np.sin, np.cos, state.T, np.asarray(target_pos).T, tv, heading)
+    for j, column in enumerate(values):  # each rounded into out as an assignment rounds
+        out[:, j] = column
     return out
+
+
+def observation_values(sin, cos, state, target, target_vel=None, heading=None) -> list:
+    """The hover layout's 18 values, or the track layout's 21 with a target velocity, written once for
+    any number type: `state` the 12 state values (x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r;
+    ENU/FLU, SI), `target` and `target_vel` 3 values each (ENU), `heading` ψ_cmd (rad) or None (the
+    world frame: version 1), each a plain float or a column of a batch (an array, broadcast), with
+    `sin` and `cos` to suit (math's for floats, NumPy's for arrays). In the state's precision; the
+    caller rounds to float32."""
+    x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r = state
+    tx, ty, tz = target
+    rot = rotation_entries(sin, cos, roll, pitch, yaw)
+    turned = rot[0] + rot[1] + rot[2] if heading is None else heading_turned(rot, cos(heading), sin(heading))
+    out = [*to_body(rot, (x - tx, y - ty, z - tz)), *to_body(rot, (vx, vy, vz)), *turned, p, q, r]
+    if target_vel is not None:
+        out += to_body(rot, target_vel)
+    return out
+
+
+def heading_turned(rot, c, s) -> tuple:
+    """The nine entries, row-major, of Rz(−ψ)·R for rotation entries `rot` (`frames.rotation_entries`)
+    and c = cos ψ, s = sin ψ: rows c·R0 + s·R1 and (−s)·R0 + c·R1, then R2 (floats or arrays)."""
+    (r00, r01, r02), (r10, r11, r12), row2 = rot
+    ns = -s
+    return (
+        c * r00 + s * r10,
+        c * r01 + s * r11,
+        c * r02 + s * r12,
+        ns * r00 + c * r10,
+        ns * r01 + c * r11,
+        ns * r02 + c * r12,
+        *row2,
+    )
 
 
 class ObservationBuilder:

@@ -1,15 +1,15 @@
 """Vehicle parameters: airframe presets and per-drone parameter batches.
 
-A preset (`VehicleParams`) is one airframe, scalars with their unit and source on the same line.
+A `VehicleParams` is one airframe, each number in the unit its field's docstring gives.
 Every VehicleParams checks its numbers when it is made (a preset, a scaled or replaced copy, one read
 from a checkpoint or from an ONNX file's metadata): each one number, finite, positive (motor_tau,
 drag and omega_min may be 0); anything else is a ValueError naming the field, its value and what was
 expected. `ParamBatch` holds the same quantities as arrays of shape (N,) so that one dynamics call
 steps N drones that may each differ (domain randomisation needs no other code path).
 
-The presets are also shipped as vehicle files, `quadpilot/vehicles/<name>.toml` (`core.vehicle_file`
-reads them and users' files alike); tests/core/test_vehicle_files.py holds the two equal, field by
-field, so a change here needs the same change there.
+The presets are the shipped vehicle files, `quadpilot/vehicles/<name>.toml`, each number there with its
+unit and source: `core.vehicle_file` reads them (and users' files alike) once into its `PRESETS`
+(`get_preset`, `SEED_VEHICLE`, `CRAZYFLIE`, `PX4_SIH_QUADX`).
 
 Rotors: `VehicleParams.rotors` lists them in actuator output order (output 1 first), each a `Rotor`
 with its position in the body FRD frame (x forward, y right, m; as a vehicle file and PX4 give it)
@@ -208,6 +208,13 @@ class VehicleParams:
                 v = float(v)
             except OverflowError:  # an integer beyond the float range
                 v = math.inf
+            if f.name == "motor_tau":
+                try:
+                    v = checked_motor_tau(v)
+                except VehicleParamsError as e:
+                    raise VehicleParamsError(f.name, f"vehicle {label}: {e}") from None
+                object.__setattr__(self, f.name, v)
+                continue
             bound, relation = _VEHICLE_LIMITS[f.name]
             if not (math.isfinite(v) and (v > bound if relation == "> 0" else v >= bound)):
                 raise VehicleParamsError(
@@ -336,6 +343,19 @@ class VehicleParams:
         return replace(self, **new)
 
 
+def checked_motor_tau(value) -> float:
+    """The motor time constant `motor_tau` (s) as a float: a finite number ≥ 0, 0 meaning no lag;
+    VehicleParamsError naming it otherwise. The one check of it: a VehicleParams, a vehicle file's
+    `motor_tau`, the --motor-tau of quad-train and of the simulator, and a SimConfig call it."""
+    try:
+        v = float(value)
+    except OverflowError:  # an integer beyond the float range
+        v = math.inf
+    if not (math.isfinite(v) and v >= 0):
+        raise VehicleParamsError("motor_tau", f"motor_tau = {v!r}: expected a finite number >= 0")
+    return v
+
+
 _ARM_RTOL = 1e-9  # arm against the rotors' mean distance: equal to the digits a file or JSON carries
 
 
@@ -370,7 +390,8 @@ def _rotor_list(rotors, label: str) -> list[Rotor]:
 
 _VEHICLE_LIMITS = {
     # field: (bound, relation). Masses, lengths, inertias, coefficients and speeds are physical
-    # magnitudes; a zero time constant, drag coefficient or idle speed means "none" (see the field docs).
+    # magnitudes; a zero drag coefficient or idle speed means "none" (see the field docs); the motor
+    # time constant has its own check, `checked_motor_tau`.
     "mass": (0.0, "> 0"),
     "arm": (0.0, "> 0"),
     "ixx": (0.0, "> 0"),
@@ -379,7 +400,6 @@ _VEHICLE_LIMITS = {
     "k_f": (0.0, "> 0"),
     "k_m": (0.0, "> 0"),
     "omega_max": (0.0, "> 0"),
-    "motor_tau": (0.0, ">= 0"),
     "drag": (0.0, ">= 0"),
     "gravity": (0.0, "> 0"),
     "omega_min": (0.0, ">= 0"),
@@ -391,75 +411,6 @@ _VEHICLE_LIMITS = {
     "k_h": (0.0, ">= 0"),
     "k_flap": (0.0, ">= 0"),
 }
-
-# The seed vehicle (the ENPM 667 project after Pi et al. 2020): mass, arm and inertia as published.
-# The seeds give no rotor data, so the rotor is a 5-inch (0.127 m) propeller, the largest that
-# fits an X frame with 0.105 m arms (adjacent rotor axes 0.148 m apart). Static thrust
-# coefficient C_T ≈ 0.11 and power coefficient C_P ≈ 0.045 are typical of 5-inch propellers in the
-# UIUC Propeller Data Site; with T = C_T·ρ·n²·D⁴ and n = ω/2π:
-#   k_f = C_T·ρ·D⁴/(4π²) = 0.11·1.225·0.127⁴/39.48 ≈ 8.9e-7 N/(rad/s)²,
-#   k_m = C_P/(2π·C_T)·D ≈ 0.0083 m (yaw torque per newton of thrust).
-# omega_max = 2000 rad/s (≈19 100 rpm, a ~1900 KV motor on 3S under load) gives thrust-to-weight
-# 2.2, the usual margin for a camera-class quadrotor; hover then sits at ω/ω_max ≈ 0.68.
-SEED_VEHICLE = VehicleParams(
-    name="seed",
-    mass=0.665,  # kg, ENPM 667 project's parameter table
-    arm=0.105,  # m, ENPM 667 project's parameter table
-    ixx=0.0023,  # kg·m², ENPM 667 project's parameter table
-    iyy=0.0025,  # kg·m², ENPM 667 project's parameter table
-    izz=0.0037,  # kg·m², ENPM 667 project's parameter table
-    k_f=8.9e-7,  # N/(rad/s)², 5-inch prop, C_T 0.11 (UIUC propeller data), derivation above
-    k_m=0.0083,  # m, C_P/(2π·C_T)·D with C_P 0.045, derivation above
-    omega_max=2000.0,  # rad/s, thrust-to-weight 2.2, derivation above
-)
-
-# Crazyflie 2.x: Förster, "System Identification of the Crazyflie 2.0 Nano Quadrocopter",
-# ETH Zurich 2015, as used by gym-pybullet-drones' cf2x.urdf (Panerati et al. 2021).
-CRAZYFLIE = VehicleParams(
-    name="crazyflie",
-    mass=0.027,  # kg, cf2x.urdf (Förster 2015: 0.027 kg without markers)
-    arm=0.046,  # m, half the 92 mm motor-to-motor diagonal (Bitcraze CF2.1 datasheet)
-    ixx=1.4e-5,  # kg·m², cf2x.urdf (Förster 2015: 1.395e-5)
-    iyy=1.4e-5,  # kg·m², cf2x.urdf (Förster 2015: 1.436e-5)
-    izz=2.17e-5,  # kg·m², cf2x.urdf (Förster 2015: 2.173e-5)
-    k_f=2.88e-8,  # N/(rad/s)², cf2x.urdf kf = 3.16e-10 N/rpm² × (60/2π)²
-    k_m=0.0251,  # m, cf2x.urdf km/kf = 7.94e-12/3.16e-10
-    omega_max=2274.0,  # rad/s, cf2x.urdf thrust2weight 2.25 → ω_max = ω_hover·√2.25
-)
-
-# PX4's SIH quad-X (PX4-Autopilot src/modules/simulation/simulator_sih/sih_params.c, airframe
-# 10040_sihsim_quadx) as RotorPy 3.0.0 models it (rotorpy/vehicles/px4_sihsim_quadx_params.py), the
-# simulator a policy for it flies against. Every number with its source: quadpilot/vehicles/px4_sih_quadx.toml.
-PX4_SIH_QUADX = VehicleParams(
-    name="px4_sih_quadx",
-    mass=1.0,  # kg, PX4 SIH_MASS
-    arm=0.240416305603,  # m, the rotors' distance 0.17·√2 to 12 digits, as a vehicle file derives it
-    ixx=0.025,  # kg·m², PX4 SIH_IXX
-    iyy=0.025,  # kg·m², PX4 SIH_IYY
-    izz=0.03,  # kg·m², PX4 SIH_IZZ
-    k_f=5e-06,  # N/(rad/s)², SIH_T_MAX 5 N / ω_max² (RotorPy k_eta)
-    k_m=0.02,  # m, SIH_Q_MAX / SIH_T_MAX = 0.1 N·m / 5 N (RotorPy k_m / k_eta)
-    omega_max=1000.0,  # rad/s, RotorPy rotor_speed_max (SIH has no rotor speed)
-    motor_tau=0.05,  # s, PX4 SIH_T_TAU (RotorPy tau_m)
-    drag=0.01,  # N·s/m, RotorPy c_D 1e-2 N/(m/s)² at 1 m/s (see the vehicle file)
-    rotors=(  # PX4 quad-X output order, RotorPy rotor_pos r1..r4 turned from FLU into FRD
-        Rotor(0.17, 0.17, "ccw"),
-        Rotor(-0.17, -0.17, "ccw"),
-        Rotor(0.17, -0.17, "cw"),
-        Rotor(-0.17, 0.17, "cw"),
-    ),
-)
-
-PRESETS: dict[str, VehicleParams] = {p.name: p for p in (SEED_VEHICLE, CRAZYFLIE, PX4_SIH_QUADX)}
-
-
-def get_preset(name: str) -> VehicleParams:
-    """The preset called `name`; a clear error names the known ones."""
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise ValueError(f"unknown vehicle preset {name!r}; known presets: {sorted(PRESETS)}") from None
-
 
 _BATCH_FIELDS = (
     "mass",

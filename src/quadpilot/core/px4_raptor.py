@@ -15,8 +15,9 @@ setpoint's yaw) and clipped; the attitude is the rotation of the body relative t
 state is ENU/FLU, and the NWU world is ENU turned by −90° about z; a quantity expressed relative to
 the setpoint yaw is the same in any world frame with the same up axis, so the same observation comes
 from our state as Rz(−ψ)·(p − p_sp), Rz(−ψ)·R, Rz(−ψ)·(v − v_sp) with ψ the setpoint's ENU yaw
-(`observation`); `observation_ned` computes it PX4's way from PX4's topics, and the tests hold the
-two together.
+(`observation_values`, written once: `observation` runs it on one vehicle's floats,
+`observation_batch` on a batch's columns, and `observation_ned` on PX4's topics turned into our
+frames; the tests hold it to values worked out by hand from PX4's way of computing it).
 
 Actions. The policy answers 4 values; the executor clamps them to [−1, 1]; mc_raptor keeps them as
 the next "previous action" and writes (a + 1)/2 to actuator_motors, remapped from the Crazyflie motor
@@ -44,15 +45,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .observation import ObsField, ObsLayout
-from .state import PITCH, POS, RATES, ROLL, VEL, YAW
+from .frames import rotation_entries
+from .observation import ObsField, ObsLayout, heading_turned
 
 MAX_POSITION_ERROR_M = 0.5
 """mc_raptor.hpp `max_position_error`: each component of the position error is clipped to this."""
 MAX_VELOCITY_ERROR_M_S = 1.0
 """mc_raptor.hpp `max_velocity_error`."""
 STUDENT_SCHEMA = "quadpilot.px4-raptor/1"
-"""The schema of the checkpoint `quad-train --contract px4-raptor` writes (`train.raptor_distill`):
+"""The schema of the checkpoint `quad-train --contract px4-raptor` writes (`train.raptor.distill`):
 torch tensors to export with `quad-export --format px4-raptor`, not a file anything flies."""
 TRAINING_RATE_HZ = 100
 """mc_raptor.hpp POLICY_CONTROL_FREQUENCY_TRAINING: the rate the GRU state advances at."""
@@ -100,10 +101,6 @@ those with `build_observation`, and this one only a policy that carries the cont
 (`runtime.raptor`)."""
 
 
-def _rz_rows(yaw: float) -> tuple[float, float]:
-    return math.cos(yaw), math.sin(yaw)
-
-
 def observation(
     state,
     target,
@@ -115,79 +112,64 @@ def observation(
     vx, vy, vz, roll, pitch, yaw, p, q, r), the setpoint position (ENU), its velocity (ENU; None:
     0) and its yaw `heading` (rad, ENU: 0 = east), and the previous action (policy order)."""
     x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r = (float(v) for v in state)
+    rot = rotation_entries(math.sin, math.cos, roll, pitch, yaw)
+    tx, ty, tz = (float(v) for v in target)
     tvx, tvy, tvz = (0.0, 0.0, 0.0) if target_vel is None else (float(v) for v in target_vel)
-    c, s = _rz_rows(float(heading))
-    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
-    sy, cy = math.sin(yaw), math.cos(yaw)
-    # R = Rz(yaw)·Ry(pitch)·Rx(roll), body FLU → ENU (core.frames.euler_to_rotmat)
-    rot = (
-        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
-        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
-        (-sp, cp * sr, cp * cr),
-    )
-    ex, ey, ez = x - float(target[0]), y - float(target[1]), z - float(target[2])
-    wx, wy, wz = vx - tvx, vy - tvy, vz - tvz
-    pe, pm = MAX_POSITION_ERROR_M, MAX_VELOCITY_ERROR_M_S
-    out = [
-        *(_clip(v, pe) for v in (c * ex + s * ey, -s * ex + c * ey, ez)),
-        *(c * rot[0][j] + s * rot[1][j] for j in range(3)),  # Rz(−ψ)·R, row by row
-        *(-s * rot[0][j] + c * rot[1][j] for j in range(3)),
-        *rot[2],
-        *(_clip(v, pm) for v in (c * wx + s * wy, -s * wx + c * wy, wz)),
-        p,
-        q,
-        r,
-        *(float(a) for a in previous_action),
-    ]
-    return np.array(out, np.float32)
+    c, s = math.cos(float(heading)), math.sin(float(heading))
+    values = observation_values(rot, (x - tx, y - ty, z - tz), (vx - tvx, vy - tvy, vz - tvz), (p, q, r), c, s, _clip)
+    return np.array([*values, *(float(a) for a in previous_action)], np.float32)
 
 
 def observation_batch(state, target, heading, previous_action, out: np.ndarray | None = None) -> np.ndarray:
     """`observation` for N vehicles at once (for training): state (N, 12), target (N, 3), heading
     (N,), previous action (N, 4), the setpoint velocity 0 (hover); returns (N, 22) float32 (into
-    `out` if given). Computed in float64, as `observation` computes, then rounded."""
+    `out` if given). `observation_values` on the columns, in float64 as `observation` computes, then
+    rounded."""
     s = np.asarray(state, np.float64)
-    roll, pitch, yaw = s[:, ROLL], s[:, PITCH], s[:, YAW]
-    c, sn = np.cos(np.asarray(heading, np.float64)), np.sin(np.asarray(heading, np.float64))
-    sr, cr, sp, cp, sy, cy = np.sin(roll), np.cos(roll), np.sin(pitch), np.cos(pitch), np.sin(yaw), np.cos(yaw)
-    rot = np.empty((len(s), 3, 3))
-    rot[:, 0] = np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], 1)
-    rot[:, 1] = np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], 1)
-    rot[:, 2] = np.stack([-sp, cp * sr, cp * cr], 1)
-    e = s[:, POS] - np.asarray(target, np.float64)
-    v = s[:, VEL]
+    x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r = s.T
+    tx, ty, tz = np.asarray(target, np.float64).T
+    heading = np.asarray(heading, np.float64)
+    rot = rotation_entries(np.sin, np.cos, roll, pitch, yaw)
+    values = observation_values(
+        rot, (x - tx, y - ty, z - tz), (vx, vy, vz), (p, q, r), np.cos(heading), np.sin(heading), _clip_columns
+    )
     out = np.empty((len(s), OBS_DIM), np.float32) if out is None else out
-    cc, ss = c[:, None], sn[:, None]
-    out[:, 0] = c * e[:, 0] + sn * e[:, 1]
-    out[:, 1] = -sn * e[:, 0] + c * e[:, 1]
-    out[:, 2] = e[:, 2]
-    out[:, 3:6] = cc * rot[:, 0] + ss * rot[:, 1]
-    out[:, 6:9] = -ss * rot[:, 0] + cc * rot[:, 1]
-    out[:, 9:12] = rot[:, 2]
-    out[:, 12] = c * v[:, 0] + sn * v[:, 1]
-    out[:, 13] = -sn * v[:, 0] + c * v[:, 1]
-    out[:, 14] = v[:, 2]
-    np.clip(out[:, 0:3], -MAX_POSITION_ERROR_M, MAX_POSITION_ERROR_M, out=out[:, 0:3])
-    np.clip(out[:, 12:15], -MAX_VELOCITY_ERROR_M_S, MAX_VELOCITY_ERROR_M_S, out=out[:, 12:15])
-    out[:, 15:18] = s[:, RATES]
-    out[:, 18:22] = previous_action
+    for j, column in enumerate(values):
+        out[:, j] = column
+    out[:, OBS_DIM - ACTION_DIM :] = previous_action
     return out
+
+
+def observation_values(rot, position_error, velocity_error, rates, c, s, clip) -> tuple:
+    """The contract's first 18 inputs (all but the previous action), written once for plain floats and
+    for a batch's columns alike: rotation entries `rot` (body FLU → ENU, `frames.rotation_entries`),
+    the position and velocity errors (vehicle minus setpoint, ENU), the body rates (FLU), c and s the
+    cosine and sine of the setpoint's ENU yaw, `clip(v, limit)` the clip to ±limit that suits the
+    numbers. The errors turned into the setpoint-yaw frame (Rz(−ψ)·e) and clipped, the attitude
+    Rz(−ψ)·R (`observation.heading_turned`), the rates."""
+    ex, ey, ez = position_error
+    wx, wy, wz = velocity_error
+    pe, ve = MAX_POSITION_ERROR_M, MAX_VELOCITY_ERROR_M_S
+    return (
+        clip(c * ex + s * ey, pe),
+        clip(-s * ex + c * ey, pe),
+        clip(ez, pe),
+        *heading_turned(rot, c, s),
+        clip(c * wx + s * wy, ve),
+        clip(-s * wx + c * wy, ve),
+        clip(wz, ve),
+        *rates,
+    )
 
 
 def _clip(v: float, limit: float) -> float:
     return limit if v > limit else -limit if v < -limit else v
 
 
-def _qmul(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a·b of quaternions (w, x, y, z)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
+def _clip_columns(v: np.ndarray, limit: float) -> np.ndarray:
+    """`_clip` on an array. Clipped in float64 before the rounding to float32: as ±limit are float32
+    numbers and rounding keeps order, the same float32 as clipping after it."""
+    return np.clip(v, -limit, limit)
 
 
 def _qrot(q) -> tuple[tuple[float, float, float], ...]:
@@ -210,32 +192,31 @@ def observation_ned(
     sp_yaw_ned: float,
     previous_action=(RESET_PREVIOUS_ACTION,) * ACTION_DIM,
 ) -> np.ndarray:
-    """The same 22 inputs computed PX4's way, from PX4's topics: vehicle_local_position (x, y, z,
-    vx, vy, vz NED), vehicle_attitude.q (body FRD → NED, w x y z), vehicle_angular_velocity.xyz
-    (FRD), trajectory_setpoint (position, velocity NED, yaw: NED, 0 = north, clockwise seen from
-    above), and the previous action: NED/FRD → NWU/FLU by negating y and z, the setpoint-yaw
-    quaternion conjugated onto the attitude, errors rotated by it and clipped (`Raptor::observe`),
-    the relative attitude as a rotation matrix (RLtools' L2F `observe`)."""
-    half = 0.5 * float(sp_yaw_ned)
-    yaw_q = (math.cos(half), 0.0, 0.0, -math.sin(half))  # the setpoint yaw, NWU: rotation by −ψ_NED about up
-    inv = (yaw_q[0], -yaw_q[1], -yaw_q[2], -yaw_q[3])  # its conjugate: NWU → setpoint-yaw frame
-    qw, qx, qy, qz = (float(v) for v in q_frd_ned)
-    rel = _qmul(inv, (qw, qx, -qy, -qz))  # body FLU → setpoint-yaw frame
-    rt = _qrot(inv)
-    flu = (1.0, -1.0, -1.0)  # NED → NWU and FRD → FLU: y and z negated
+    """The same 22 inputs from PX4's topics: vehicle_local_position (x, y, z, vx, vy, vz NED),
+    vehicle_attitude.q (body FRD → NED, w x y z), vehicle_angular_velocity.xyz (FRD),
+    trajectory_setpoint (position, velocity NED, yaw: NED, 0 = north, clockwise seen from above), and
+    the previous action. Turned into our frames and observed as `observation` observes
+    (`observation_values`): world NED → ENU swaps x and y and negates z (E), body FRD → FLU negates y
+    and z (F), the attitude R_ENU←FLU = E·R_NED←FRD·F, the setpoint yaw `heading_from_ned_yaw`."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = _qrot(tuple(float(v) for v in q_frd_ned))
+    # E·R·F: rows 0 and 1 swapped, row 2 negated, then columns 1 and 2 negated
+    rot = ((m10, -m11, -m12), (m00, -m01, -m02), (-m20, m21, m22))
 
-    def turned(v, sp, limit):
-        d = [f * (float(a) - float(b)) for f, a, b in zip(flu, v, sp, strict=True)]
-        return [_clip(sum(rt[i][j] * d[j] for j in range(3)), limit) for i in range(3)]
+    def enu(v, sp) -> tuple[float, float, float]:  # v − sp, NED → ENU
+        return float(v[1]) - float(sp[1]), float(v[0]) - float(sp[0]), float(sp[2]) - float(v[2])
 
-    out = [
-        *turned(position_ned, sp_position_ned, MAX_POSITION_ERROR_M),
-        *(v for row in _qrot(rel) for v in row),
-        *turned(velocity_ned, sp_velocity_ned, MAX_VELOCITY_ERROR_M_S),
-        *(f * float(w) for f, w in zip(flu, gyro_frd, strict=True)),
-        *(float(a) for a in previous_action),
-    ]
-    return np.array(out, np.float32)
+    gx, gy, gz = (float(v) for v in gyro_frd)
+    heading = heading_from_ned_yaw(sp_yaw_ned)
+    values = observation_values(
+        rot,
+        enu(position_ned, sp_position_ned),
+        enu(velocity_ned, sp_velocity_ned),
+        (gx, -gy, -gz),
+        math.cos(heading),
+        math.sin(heading),
+        _clip,
+    )
+    return np.array([*values, *(float(a) for a in previous_action)], np.float32)
 
 
 def motor_commands(action, order=MOTOR_FROM_POLICY) -> np.ndarray:

@@ -6,7 +6,7 @@ drone, so randomising an episode means new entries for the drones being reset
 constants on the batch object, so the next step derives them afresh; the old batch is untouched.
 Wind and pushes become the external force and moment that `core.dynamics.step` takes.
 
-Wind acts as in the SITL simulator (`firmware_sim.sim.Plant`): through linear drag on the
+Wind acts as in the SITL simulator (`simulator.Plant`): through linear drag on the
 air-relative velocity, F = drag·(wind − v). `core.dynamics` applies −drag·v (`ParamBatch.drag`);
 the constant drag·wind is the external force here.
 
@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .params import GRAVITY, SEED_VEHICLE, ParamBatch, VehicleParams
+from .params import GRAVITY, ParamBatch, VehicleParams
+from .vehicle_file import SEED_VEHICLE
 
 Range = tuple[float, float]
 
@@ -59,7 +60,7 @@ class RandomizationConfig:
     """deg, direction the wind blows towards, counter-clockwise from +x (east); None: uniform."""
     drag: Range | None = (0.1, 0.3)
     """N·s/m, linear drag coefficient, F = drag·(wind − v) (absolute, replaces the preset's);
-    None: the preset's. quad-sitl uses 0.2 when there is wind (`firmware_sim.DEFAULT_WIND_DRAG`)."""
+    None: the preset's. quad-sitl uses 0.2 when there is wind (`simulator.DEFAULT_WIND_DRAG`)."""
     push_prob: float = 0.0
     """Probability that an episode has one push: a constant force and moment of random direction
     over a random interval."""

@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 
 from .params import Rotor, VehicleParams, VehicleParamsError
-from .vehicle_file import NAME_PATTERN, vehicle_to_toml
+from .vehicle_file import NAME_PATTERN, NAME_RULE, vehicle_to_toml
 
 SOURCE_KEYS = {
     "mass": "mass",
@@ -208,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     name = args.name or args.module.rsplit(".", 1)[-1].removesuffix("_params")
     if not NAME_PATTERN.fullmatch(name):
-        print(f"error: --name {name!r}: expected 1-64 letters, digits, '_', '-' or '.'", file=sys.stderr)
+        print(f"error: --name {name!r}: expected {NAME_RULE}", file=sys.stderr)
         return 2
     try:
         module = importlib.import_module(args.module)

@@ -1,5 +1,5 @@
 """Sensor noise: an IMU (gyroscope and accelerometer) and the output of a state estimator, batched
-over N drones, NumPy only. The training environments and the simulator (`firmware_sim`) both use it,
+over N drones, NumPy only. The training environments and the simulator (`simulator`) both use it,
 so a policy is trained on the noise it later meets over MAVLink.
 
 IMU, per drone and per axis, the model of Kalibr's "IMU Noise Model" wiki page (Nikolic, ETH) that

@@ -3,7 +3,7 @@
 The shipped presets are files of this package (`quadpilot/vehicles/<name>.toml`), and a user's file
 works the same way. The schema takes the numbers as RotorPy's and PX4's parameter sets give them:
 
-    name = "px4_sih_quadx"     # letters, digits, "_", "-", "." (it names the vehicle in messages and metadata)
+    name = "px4_sih_quadx"     # letters, digits, "_", ".", "+", "-" (it names the vehicle in messages and metadata)
     mass = 1.0                 # kg
     ixx = 0.025                # kg m^2, principal inertias (diagonal inertia tensor)
     iyy = 0.025
@@ -71,7 +71,7 @@ try:  # stdlib from Python 3.11; the `tomli` backport (same API) on 3.10
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-from .params import GRAVITY, NUM_MOTORS, Rotor, VehicleParams, VehicleParamsError
+from .params import GRAVITY, NUM_MOTORS, Rotor, VehicleParams, VehicleParamsError, checked_motor_tau
 
 VEHICLES_DIR = Path(__file__).resolve().parent.parent / "vehicles"
 """The shipped vehicle files (package data, `quadpilot/vehicles/*.toml`)."""
@@ -79,7 +79,12 @@ VEHICLES_DIR = Path(__file__).resolve().parent.parent / "vehicles"
 MAX_FILE_BYTES = 64 * 1024
 """A vehicle file is a few hundred bytes; anything beyond this is not one (and is not read whole)."""
 
-NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}")
+"""A vehicle's name (`NAME_RULE`), the one rule wherever a name is read or written: a vehicle file,
+a policy file's metadata (`modelfile`), the C the generator writes it into, the vehicle file the
+simulator is given for a policy's vehicle. None of its characters needs quoting in TOML, JSON or C,
+and it starts with a letter or digit, so it is never a hidden file's name, "." or "..", or an option."""
+NAME_RULE = "1-64 letters, digits, '_', '.', '+' or '-', the first a letter or digit"
 
 _REQUIRED = ("name", "mass", "ixx", "iyy", "izz", "k_thrust", "k_torque", "omega_max", "rotor")
 _ROTOR_AERO = ("k_d", "k_z", "k_h", "k_flap")
@@ -176,7 +181,7 @@ def _from_table(doc: dict, path) -> VehicleParams:
     name = doc["name"]
     if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
         found = f"{_short(name)!r}" if isinstance(name, str) else _type(name)
-        raise VehicleFileError(path, "name", f"expected 1-64 letters, digits, '_', '-' or '.', found {found}")
+        raise VehicleFileError(path, "name", f"expected {NAME_RULE}, found {found}")
 
     def number(key: str, relation: str, default: float | None = None) -> float:
         if key not in doc:
@@ -188,7 +193,7 @@ def _from_table(doc: dict, path) -> VehicleParams:
     k_thrust, k_torque = number("k_thrust", "> 0"), number("k_torque", "> 0")
     omega_max = number("omega_max", "> 0")
     omega_min = number("omega_min", ">= 0", 0.0)
-    motor_tau = number("motor_tau", ">= 0", 0.0)
+    motor_tau = _motor_tau(doc.get("motor_tau", 0.0), path)
     drag = _drag(doc.get("drag", 0.0), path)
     c_dx, c_dy, c_dz = _drag_quadratic(doc.get("drag_quadratic", [0.0, 0.0, 0.0]), path)
     aero = {k: number(k, ">= 0", 0.0) for k in _ROTOR_AERO}
@@ -224,13 +229,24 @@ def _from_table(doc: dict, path) -> VehicleParams:
         raise VehicleFileError(path, _FIELD_KEY.get(e.field, e.field), reason.strip()) from None
 
 
-def _number(v, path, key: str, relation: str) -> float:
+def _float(v, path, key: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise VehicleFileError(path, key, f"expected a number (float or integer), found {_type(v)}")
     try:
-        f = float(v)
+        return float(v)
     except OverflowError:  # a TOML integer beyond the float range
-        f = math.inf
+        return math.inf
+
+
+def _motor_tau(v, path) -> float:
+    try:
+        return checked_motor_tau(_float(v, path, "motor_tau"))
+    except VehicleParamsError:
+        raise VehicleFileError(path, "motor_tau", f"= {_short(v)}: expected a finite number >= 0") from None
+
+
+def _number(v, path, key: str, relation: str) -> float:
+    f = _float(v, path, key)
     ok = f > 0 if relation == "> 0" else f >= 0
     if not (math.isfinite(f) and ok):
         raise VehicleFileError(path, key, f"= {_short(v)}: expected a finite number {relation}")
@@ -321,7 +337,7 @@ def vehicle_to_toml(v: VehicleParams) -> str:
     if v.gravity != GRAVITY:
         raise ValueError(f"vehicle {v.name!r}: gravity {v.gravity} is not {GRAVITY}; a vehicle file cannot hold it")
     if not NAME_PATTERN.fullmatch(v.name):
-        raise ValueError(f"vehicle name {_short(v.name)!r}: a vehicle file needs 1-64 letters, digits, '_', '-', '.'")
+        raise ValueError(f"vehicle name {_short(v.name)!r}: a vehicle file needs {NAME_RULE}")
     k_torque = _pick(v.k_m * v.k_f, lambda t: _round12(t / v.k_f) == v.k_m)
     lines = [
         f'name = "{v.name}"',
@@ -391,6 +407,12 @@ def _rotor_rows(rotors) -> str:
     return " ".join(f"({r.x:.4g}, {r.y:.4g}, {r.spin})" for r in rotors)
 
 
+def same_vehicle(a: VehicleParams, b: VehicleParams) -> bool:
+    """Whether two vehicles are the same airframe: every field equal but the name (`differences`
+    says what differs)."""
+    return not differences(a, b)
+
+
 def differences(a: VehicleParams, b: VehicleParams) -> list[str]:
     """What differs between two vehicles but their names, in field order, for a message:
     "mass 0.665 vs 0.03 kg" (a's value first), "rotors (x, y, spin) ... vs ..."."""
@@ -407,3 +429,22 @@ def differences(a: VehicleParams, b: VehicleParams) -> list[str]:
             ta, tb = repr(va), repr(vb)
         out.append(f"{f.name} {ta} vs {tb} {UNITS[f.name]}")
     return out
+
+
+def _shipped_presets() -> dict[str, VehicleParams]:
+    names = sorted(shipped_names(), key=lambda n: n != "seed")  # the default first, then by name
+    return {n: load_vehicle_file(VEHICLES_DIR / f"{n}.toml") for n in names}
+
+
+PRESETS: dict[str, VehicleParams] = _shipped_presets()
+"""The presets: the shipped vehicle files by name, read once. The files are the one definition of
+each preset's numbers, each with its unit and source."""
+SEED_VEHICLE, CRAZYFLIE, PX4_SIH_QUADX = PRESETS["seed"], PRESETS["crazyflie"], PRESETS["px4_sih_quadx"]
+
+
+def get_preset(name: str) -> VehicleParams:
+    """The preset called `name`; a clear error names the known ones."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(f"unknown vehicle preset {name!r}; known presets: {sorted(PRESETS)}") from None

@@ -122,8 +122,8 @@ def _check_retarget_output(out: Path, ckpt: Path) -> None:
 
 def _is_retargeted(path: Path) -> bool:
     """Whether `path` is a policy an earlier quad-export --vehicle wrote (then it may be replaced)."""
+    from quadpilot.train.algorithms import load_checkpoint
     from quadpilot.train.runs.checkpoint import CheckpointError
-    from quadpilot.train.runs.checkpoint_read import load_checkpoint
 
     try:
         return "retargeted" in load_checkpoint(path).get("extra", {})
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME|FILE.toml",
         help="Fly a generalist policy (quad-train --randomize airframes) on this airframe, retrained in nothing: "
         "its hover command goes into the graph, its rotor order into the action head "
-        "(quadpilot.train.retarget); the retargeted policy is written beside the ONNX file as <name>.pt "
+        "(quadpilot.train.ppo.retarget); the retargeted policy is written beside the ONNX file as <name>.pt "
         "(default output: <checkpoint>_<vehicle>.onnx). Default: the policy's own vehicle",
     )
     p.add_argument(
@@ -208,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.vehicle is not None:
             aside = _set_aside(out)
             args.checkpoint = _retargeted(args, out)
-        from quadpilot.train.raptor_distill import CONTRACT, is_student_checkpoint
+        from quadpilot.train.raptor.distill import CONTRACT, is_student_checkpoint
 
         if is_student_checkpoint(args.checkpoint):
             print(
@@ -268,9 +268,9 @@ def _retargeted(args, out: Path) -> Path:
     """Write the policy retargeted to --vehicle as <output>.pt and return its path."""
     import torch
 
-    from quadpilot.console import atomic_write
-    from quadpilot.train.retarget import retarget_checkpoint
-    from quadpilot.train.runs.checkpoint_read import load_checkpoint
+    from quadpilot.atomic_files import atomic_write
+    from quadpilot.train.algorithms import load_checkpoint
+    from quadpilot.train.ppo.retarget import retarget_checkpoint
 
     vehicle = args.vehicle  # a VehicleParams by now (_check_args)
     data = retarget_checkpoint(load_checkpoint(args.checkpoint), vehicle, str(args.checkpoint))
@@ -288,8 +288,8 @@ def _failure(e: Exception) -> str | None:
     """The one-line message for an export that failed on its input or its output, None for a bug."""
     from quadpilot.modelfile.model import ModelContractError
     from quadpilot.runtime.rltools_tar import PolicyTarError
-    from quadpilot.train.raptor_distill import StudentCheckpointError
-    from quadpilot.train.retarget import RetargetError
+    from quadpilot.train.ppo.retarget import RetargetError
+    from quadpilot.train.raptor.distill import StudentCheckpointError
     from quadpilot.train.runs.checkpoint import CheckpointError
 
     if isinstance(e, (CheckpointError, ModelContractError, StudentCheckpointError, PolicyTarError, RetargetError)):

@@ -29,13 +29,13 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.core.dynamics import MOTOR_NAMES, action_to_command
 from quadpilot.core.observation import build_observation
 from quadpilot.core.state import PITCH, POS, RATES, ROLL, STATE_DIM, VEL, YAW
+from quadpilot.train.algorithms import CheckpointError, load_checkpoint, trained_policy
 from quadpilot.train.envs import QuadBatch
-from quadpilot.train.runs.checkpoint import CheckpointError, TrainedPolicy
-from quadpilot.train.runs.checkpoint_read import load_checkpoint
+from quadpilot.train.runs.checkpoint import TrainedPolicy
 
 ONNX_SCHEMA = "quadpilot.onnx/1"
 INPUT, OUTPUT = "obs", "action"
@@ -195,13 +195,13 @@ def reference_commands(policy: TrainedPolicy, obs: np.ndarray, starts: np.ndarra
     if not policy.recurrent and getattr(policy.model, "squash", None) == "tanh":
         # SAC: the network's z (float32), then tanh and the map in float64 (see DeployablePolicy)
         with torch.inference_mode():
-            z = policy.model.actor[:-1](policy._input(obs)).numpy().astype(np.float64)
+            z = policy.model.unsquashed_mean(policy.network_input(obs)).numpy().astype(np.float64)
         return action_to_command(np.tanh(z), u_hover)
     if not policy.recurrent:
         return action_to_command(policy(obs).astype(np.float64), u_hover)
     t, b, d = obs.shape
     with torch.inference_mode():
-        x = policy._input(obs.reshape(t * b, d)).reshape(t, b, d)
+        x = policy.network_input(obs.reshape(t * b, d)).reshape(t, b, d)
         mean, _ = policy.model.actor_sequence(x, policy.initial_state(b), torch.from_numpy(starts))
     return action_to_command(mean.clamp(-1.0, 1.0).numpy().astype(np.float64), u_hover)
 
@@ -362,7 +362,7 @@ def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike, opset: in
     check_opset(opset)
     checkpoint, out = Path(checkpoint), Path(out)
     ckpt = load_checkpoint(checkpoint)
-    policy = TrainedPolicy(ckpt, str(checkpoint))
+    policy = trained_policy(ckpt, str(checkpoint))
     module = deployable(policy)
     dim = policy.layout.dim
     batch = torch.export.Dim("batch")
@@ -436,7 +436,7 @@ def check_parity(
 
     from quadpilot.runtime.backends import load_policy as load_runtime_policy
 
-    policy = TrainedPolicy(load_checkpoint(checkpoint), str(checkpoint))
+    policy = trained_policy(load_checkpoint(checkpoint), str(checkpoint))
     module = deployable(policy)
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1

@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.core import px4_raptor
 from quadpilot.core.vehicle_file import vehicle_to_toml
 from quadpilot.runtime import gru, rltools_tar
 from quadpilot.runtime.raptor import VEHICLE_BESIDE
 from quadpilot.train.envs import EnvConfig
-from quadpilot.train.raptor_distill import StudentCheckpointError, fly, load_student, numpy_policy
+from quadpilot.train.raptor.distill import StudentCheckpointError, fly, load_student, numpy_policy
 
 EXAMPLE_SEED = 2025
 """Seed of the two flights the example is taken from."""

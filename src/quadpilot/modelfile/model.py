@@ -13,7 +13,7 @@ Everything in the file is untrusted: its graph and every metadata string (docs/a
   u_hover); the envelope; the architecture (known keys only, finite ordered
   clips, bounded sizes); the golden vectors (finite, bounded count). JSON NaN and Infinity are
   refused. Strings read from the file are never executed and never pasted into generated code:
-  `cgen` writes only numbers it formats itself and text from this runtime's own tables, and the
+  `ccode.generate` writes only numbers it formats itself and text from our own tables, and the
   strings it does write are checked here against a fixed set or a strict pattern.
 - The graph is exactly the architecture its metadata declares, operator by operator and
   initializer by initializer (`graph.check_graph`), so that ONNX Runtime, which runs the graph, and
@@ -43,6 +43,7 @@ from quadpilot.core.mission import TASKS
 from quadpilot.core.observation import ObsLayout, get_layout
 from quadpilot.core.params import VehicleParams
 from quadpilot.core.px4_raptor import STUDENT_SCHEMA
+from quadpilot.core.vehicle_file import NAME_PATTERN, NAME_RULE
 
 from .contract import NUM_MOTORS, ModelContractError, ModelInfo, fail, one_line, quote
 from .graph import OPSETS as OPSETS  # re-exported: quad-export reads the operator sets from here
@@ -70,8 +71,6 @@ ACTION_MEANING = (
 )
 """What the schema's output is (`export.onnx_export` writes this text); a file must say the same."""
 SHA256_PATTERN = re.compile(r"[0-9a-f]{64}")
-VEHICLE_NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}")
-"""A vehicle name is a plain identifier (presets: seed, crazyflie); it is written into generated C."""
 MAX_LAYERS = 16
 MAX_HIDDEN = 1024
 MAX_GOLDEN = 1024
@@ -286,11 +285,8 @@ def _read_vehicle(path, vehicle_json) -> VehicleParams:
         raise fail(path, f"vehicle metadata does not describe a VehicleParams ({one_line(e)})") from None
     except ValueError as e:  # VehicleParams names the field and what it expected
         raise fail(path, f"vehicle metadata: {one_line(e)}") from None
-    if not VEHICLE_NAME_PATTERN.fullmatch(vehicle.name):
-        raise fail(
-            path,
-            f"vehicle name {quote(vehicle.name)}: expected a plain name (letters, digits, _ . + -, at most 64)",
-        )
+    if not NAME_PATTERN.fullmatch(vehicle.name):  # a plain name: it is written into generated C
+        raise fail(path, f"vehicle name {quote(vehicle.name)}: expected a plain name ({NAME_RULE})")
     return vehicle
 
 

@@ -1,6 +1,6 @@
 """The network of one exported file, read once from its checked metadata and initializers: what
 every backend that computes the architecture itself builds from (the NumPy backend's `NumpyPolicy`,
-and the C generator `cgen` behind the c backend and `quad-export --format c`).
+and the C generator `ccode.generate` behind the c backend and `quad-export --format c`).
 
     model, info = model.read_model("policy.onnx")
     net = network_from_model(info, model.initializer_arrays(model, info.path))

@@ -1,4 +1,5 @@
-"""Torch-free runtime: policy backends, safety monitor, fallback controller, MAVLink node.
+"""Torch-free runtime: the policy backends (NumPy, ONNX Runtime, C), the safety monitor and its
+fallback controller, PX4 mc_raptor's policies (`policy.tar`, RAPTOR) and the shipped models.
 
     from quadpilot.runtime import load_policy, SafetyMonitor
     monitor = SafetyMonitor(load_policy("models/hover/policy.onnx", backend="numpy"))

@@ -7,11 +7,11 @@
 `OnnxRuntimePolicy` runs the graph in an ONNX Runtime session created once, single-threaded, with
 its inputs and outputs bound to preallocated buffers (I/O binding saves the per-call conversion
 of `session.run`). The NumPy and C backends compute the network the file's architecture metadata
-describes, read once from the file's initializers into a `network.Network`: `NumpyPolicy`
-computes it with NumPy; `cbackend.CPolicy` (backend "c") generates C from it (`cgen`, what
-`quad-export --format c` writes), compiles it once with the system C compiler and calls it through
-ctypes. All three implement `policy.Policy`. None knows about safety: wrap them in
-`safety.SafetyMonitor`.
+describes, read once from the file's initializers into a `modelfile.network.Network`:
+`NumpyPolicy` computes it with NumPy; `cbackend.CPolicy` (backend "c") generates C from it
+(`ccode.generate`, what `quad-export --format c` writes), compiles it once with the system C
+compiler and calls it through ctypes. All three implement `policy.Policy`. None knows about
+safety: wrap them in `safety.SafetyMonitor`.
 
 Rules, so that the three backends fly one function or none flies:
 - `load_policy` checks the file's contract first (`model.read_model`: every metadata value, and a
@@ -82,7 +82,7 @@ class OnnxRuntimePolicy(Policy):
                 b.bind_output(name, "cpu", 0, np.float32, list(buf.shape), buf.ctypes.data)
         self._run = self.session.run_with_iobinding
 
-    def _act(self, x: np.ndarray) -> np.ndarray:
+    def act_unchecked(self, x: np.ndarray) -> np.ndarray:
         self._obs[0] = x
         self._run(self._binding)
         if self.info.recurrent:
@@ -210,7 +210,7 @@ class NumpyPolicy(Policy):
         # when u_hover·√2 may exceed its upper bound (the graph keeps it; here it costs 0.5 µs)
         self._final_clip = not (self._c_lo <= 0.0 and float(np.float32(self._u_hover)) * 1.41421357 < self._c_hi - 1e-6)
 
-    def _act(self, x: np.ndarray) -> np.ndarray:
+    def act_unchecked(self, x: np.ndarray) -> np.ndarray:
         if self._norm is None:
             self._x[...] = x
         else:

@@ -1,9 +1,10 @@
-"""The `c` backend: the file's network as generated C (`cgen`), compiled once, called through ctypes.
+"""The `c` backend: the file's network as generated C (`ccode.generate`), compiled once, called
+through ctypes.
 
     policy = load_policy("models/hover/policy.onnx", backend="c")
 
 `load_policy` checks the file's contract as for the other backends; this module then generates
-policy.c/policy.h from the file's network and metadata (`cgen.generate`, the same generator
+policy.c/policy.h from the file's network and metadata (`ccode.generate`, the same generator
 `quad-export --format c` writes), compiles them with the system C compiler into a shared library
 and loads it with ctypes; `load_policy` replays the golden vectors through it before returning.
 
@@ -245,7 +246,7 @@ class CPolicy(Policy):
         code = cgen.generate_network(info, net)
         return cls(info, code, build_library(code))
 
-    def _act(self, x: np.ndarray) -> np.ndarray:
+    def act_unchecked(self, x: np.ndarray) -> np.ndarray:
         self._obs[...] = x
         self._call()
         return self._out.copy()

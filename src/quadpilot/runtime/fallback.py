@@ -47,8 +47,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from quadpilot.core.observation import HOVER_LAYOUT, TRACK_LAYOUT
-from quadpilot.core.params import VehicleParams, get_preset
+from quadpilot.core.params import VehicleParams
 from quadpilot.core.params import allocation_matrix as allocation_matrix  # re-exported: the mixer's matrix
+from quadpilot.core.vehicle_file import get_preset
 
 _HOVER_SLICES = HOVER_LAYOUT.slices()
 _TRACK_SLICES = TRACK_LAYOUT.slices()

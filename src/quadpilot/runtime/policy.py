@@ -4,8 +4,8 @@
     policy.reset()               # start of an episode: recurrent state to zero
 
 A backend (`backends.OnnxRuntimePolicy`, `backends.NumpyPolicy`, `cbackend.CPolicy`) implements
-`_act` on a float32 (obs_dim,) array and, if recurrent, `reset`. `Policy.act` takes only a
-real-number array of the policy's shape; anything else (strings, None, dicts, object or complex
+`act_unchecked` on a float32 (obs_dim,) array and, if recurrent, `reset`. `Policy.act` takes only
+a real-number array of the policy's shape; anything else (strings, None, dicts, object or complex
 arrays, a wrong size) raises `ObservationShapeError`, one line. `verify_golden` replays the file's
 golden vectors through the backend (`backends.load_policy` decides what difference it accepts).
 
@@ -31,7 +31,8 @@ class ObservationShapeError(ValueError):
 
 
 class Policy:
-    """Batch-1 policy over raw observations. Subclasses implement `_act(x)` on a float32 (obs_dim,)."""
+    """Batch-1 policy over raw observations. Subclasses implement `act_unchecked(x)` on a float32
+    (obs_dim,)."""
 
     backend = "?"
     own_observation = None
@@ -46,8 +47,8 @@ class Policy:
         self._shape = (info.obs_dim,)
 
     def observation(self, obs) -> np.ndarray:
-        """`obs` as the (obs_dim,) float32 array `_act` takes; accepts (obs_dim,), (1, obs_dim) or a
-        sequence of real numbers, raises ObservationShapeError for anything else."""
+        """`obs` as the (obs_dim,) float32 array `act_unchecked` takes; accepts (obs_dim,),
+        (1, obs_dim) or a sequence of real numbers, raises ObservationShapeError for anything else."""
         if type(obs) is np.ndarray and obs.dtype is _FLOAT32 and obs.shape == self._shape:
             return obs  # the control loop's case: one type check, one identity check, one compare
         return self._checked_observation(obs)
@@ -72,9 +73,11 @@ class Policy:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Motor commands (4,) float32 for one observation (obs_dim,) or (1, obs_dim)."""
-        return self._act(self.observation(obs))
+        return self.act_unchecked(self.observation(obs))
 
-    def _act(self, x: np.ndarray) -> np.ndarray:
+    def act_unchecked(self, x: np.ndarray) -> np.ndarray:
+        """Motor commands (4,) float32 for `x` as `observation` returns it, unchecked: for a caller
+        that checks once and calls this directly (`safety.SafetyMonitor`)."""
         raise NotImplementedError
 
     def reset(self) -> None:

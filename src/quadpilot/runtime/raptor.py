@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from quadpilot.core import px4_raptor
-from quadpilot.core.params import get_preset
+from quadpilot.core.vehicle_file import get_preset
 from quadpilot.modelfile.contract import ModelContractError, ModelInfo
 
 from .gru import EXAMPLE_TOLERANCE, GruStep, OnnxGruStep, check_example, weights_from_h5
@@ -182,7 +182,7 @@ class RaptorPolicy(Policy):
         prev = self.executor.previous_action_input()
         return px4_raptor.observation(state, target, target_vel, 0.0 if heading is None else heading, prev)
 
-    def _act(self, x: np.ndarray) -> np.ndarray:
+    def act_unchecked(self, x: np.ndarray) -> np.ndarray:
         return self.executor.control(x)
 
     def verify_golden(self) -> float:

@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot import console
+from quadpilot import atomic_files
 from quadpilot.core.px4_raptor import ACTION_DIM, OBS_DIM
 
 from .gru import GRU_KEYS, GruStep, sequences
@@ -226,9 +226,9 @@ def write_policy_tar(
 def write_policy_tar_bytes(path: str | Path, data: bytes) -> str:
     """Write the bytes `policy_tar_bytes` made (checked there) as `write_policy_tar` does; returns the hex."""
     digest = sha256_hex(data)
-    console.atomic_write(path, lambda f: f.write(data))
+    atomic_files.atomic_write(path, lambda f: f.write(data))
     line = f"{digest}  {Path(path).name}\n".encode()
-    console.atomic_write(sha256_path(path), lambda f: f.write(line))
+    atomic_files.atomic_write(sha256_path(path), lambda f: f.write(line))
     return digest
 
 

@@ -34,7 +34,7 @@ hand-back is counted in `events` (`fallback_engaged`, `handed_back`, `fallback_l
 queued in `transitions` for whoever logs them (`autopilot.node`). `source` says who flew the last
 step: "policy", "fallback", or "recovering" (the fallback, after bad input, while the hand-back
 time runs inside the recovery envelope: the price of the hand-back rule, not a failure of the
-policy; `sitl_node` does not count those steps against the flight).
+policy; `sitl.node_only` does not count those steps against the flight).
 """
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ class SafetyMonitor:
         from .fallback import FallbackController
 
         self.policy = policy
-        self._policy_act = policy._act
+        self._policy_act = policy.act_unchecked
         self._observation = policy.observation
         info = policy.info
         make = getattr(policy, "make_fallback", None)  # a policy with an observation of its own brings its fallback
@@ -153,7 +153,7 @@ class SafetyMonitor:
         old, new = self.policy.info, policy.info
         if new.layout != old.layout or new.control_period_s != old.control_period_s:
             raise ValueError(f"{new.path}: a different observation or rate than {old.path}; expected the same contract")
-        self.policy, self._policy_act, self._observation = policy, policy._act, policy.observation
+        self.policy, self._policy_act, self._observation = policy, policy.act_unchecked, policy.observation
         self.reset()
 
     @property

@@ -141,9 +141,9 @@ def planned_config(run_argv: list[str]) -> dict:
     """The PPOConfig (as config.json holds it) of the first run `quad-compare run RUN_ARGV` trains: its
     quad-train command line read as quad-train reads it, so the matched-settings table of a sweep can
     be printed before the sweep is run (the table lists configuration, not measurements)."""
-    from quadpilot.train import options
     from quadpilot.train.cli import build_parser as train_parser
     from quadpilot.train.ppo import PPO
+    from quadpilot.train.runs import options
 
     args = build_parser().parse_args(["run", *run_argv])
     train_args = train_parser().parse_args(list(plan(args)[0].argv))

@@ -94,7 +94,7 @@ def plot_sweep(runs: list[Run], title: str, out_path: Path) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from quadpilot.console import atomic_write
+    from quadpilot.atomic_files import atomic_write
     from quadpilot.train.runs.loop import SUCCESS_BAR
 
     fig = Figure(figsize=(9, 6), layout="constrained")
@@ -363,7 +363,7 @@ def render(directories: list[Path], figures: Path, doc: Path, argv: list[str]) -
 
 
 def cmd_report(args, argv: list[str]) -> int:
-    from quadpilot.console import atomic_write
+    from quadpilot.atomic_files import atomic_write
 
     doc, figures = Path(args.doc), Path(args.figures)
     section = render([Path(d) for d in args.sweeps], figures, doc, argv)

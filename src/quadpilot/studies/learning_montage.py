@@ -78,7 +78,7 @@ def flight_config(policy, seconds: float | None = None):
         changes["randomization"] = None
     cur = (policy.extra or {}).get("curriculum")
     if cur:
-        from quadpilot.train.curriculum import CurriculumConfig
+        from quadpilot.train.envs.curriculum import CurriculumConfig
 
         changes["target_radius"] = CurriculumConfig.from_json(cur["config"]).radii[int(cur["stage"])]
     if seconds is not None:
@@ -208,7 +208,8 @@ def _montage(args) -> int:
     import torch
 
     from quadpilot.console import check_output_path
-    from quadpilot.train.runs.checkpoint import CheckpointError, list_snapshots, load_policy
+    from quadpilot.train.algorithms import load_policy
+    from quadpilot.train.runs.checkpoint import CheckpointError, list_snapshots
     from quadpilot.viz import VizUnavailable, check_video_output, render_montage
 
     size = _size(args.size)

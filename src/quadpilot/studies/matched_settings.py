@@ -83,7 +83,7 @@ FIELD_MAP: dict[str, tuple[str | None, str]] = {
     "threads": ("threads", "torch.set_num_threads in both"),
     "update": (
         None,
-        "how our PPO computes its update and rollout forward passes (numpy: quadpilot.train.numpy_ppo, or "
+        "how our PPO computes its update and rollout forward passes (numpy: quadpilot.train.ppo.numpy_ppo, or "
         "torch; equal to float32 rounding); SB3 computes its own with torch autograd",
     ),
 }

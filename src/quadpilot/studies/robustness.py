@@ -5,7 +5,7 @@ controller (`runtime.fallback.FallbackController`, which acts on the same observ
 
 - the grid: perturbed plants (mass, thrust constant k_f, wind; `core.randomization`), 100 hover
   episodes per cell from the hover bar's starts, judged by `core.mission`'s success definition;
-  policies through `train.evaluate.evaluate`, the fallback through `fly` (checked equal to
+  policies through `train.envs.evaluate.evaluate`, the fallback through `fly` (checked equal to
   `evaluate` for a policy by a test);
 - the same grid through `quad-sitl` (`--mass-scale`, `--motor-scale`, `--wind`), for ONNX files;
 - disturbance scenarios on the nominal plant, starting at rest on the target: a 1 N push for
@@ -18,7 +18,7 @@ Regenerate the tables of docs/robustness.md:
         --policy randomised=models/hover_dr/policy.pt --fallback --sitl --out docs/bench/robustness
 
 Wind acts as in the SITL simulator: through linear drag, F = drag·(wind − v), with quad-sitl's
-default drag coefficient when there is wind (`firmware_sim.sim.DEFAULT_WIND_DRAG`, 0.2 N·s/m).
+default drag coefficient when there is wind (`simulator.DEFAULT_WIND_DRAG`, 0.2 N·s/m).
 """
 
 from __future__ import annotations
@@ -37,14 +37,15 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import BadFile, Parser, UsageError, atomic_write, docs_quick, quick, run_command
+from quadpilot.atomic_files import atomic_write
+from quadpilot.console import BadFile, Parser, UsageError, docs_quick, quick, run_command
 from quadpilot.core import dynamics
 from quadpilot.core.mission import window_success, wrap_angle, yaw_errors
 from quadpilot.core.observation import build_observation
 from quadpilot.core.params import VehicleParams
 from quadpilot.core.randomization import RandomizationConfig
 from quadpilot.core.state import POS, YAW
-from quadpilot.firmware_sim.sim import DEFAULT_WIND_DRAG
+from quadpilot.simulator import DEFAULT_WIND_DRAG
 from quadpilot.train.envs import EnvConfig, QuadBatch
 
 GRID_MASS = (0.85, 1.0, 1.15)
@@ -249,9 +250,9 @@ def hover_config(vehicle: str | VehicleParams = "seed", dtype: str = "float32") 
 
 def evaluate_grid(controller, cfg: EnvConfig, cells: list[Cell], episodes: int = 100, seed: int = 12345) -> list[dict]:
     """Success and position error of `controller` on each cell, `episodes` episodes each, the
-    same starts in every cell. Policies go through `train.evaluate.evaluate`, the rest through
+    same starts in every cell. Policies go through `train.envs.evaluate.evaluate`, the rest through
     `fly`."""
-    from quadpilot.train.evaluate import evaluate
+    from quadpilot.train.envs.evaluate import evaluate
 
     out = []
     for cell in cells:
@@ -475,7 +476,7 @@ def scenario_table(rows: list[dict]) -> str:
 def write_model_eval(eval_path: Path, name: str, report: dict, policy) -> dict:
     """Add this harness's results for policy `name` to a shipped model's eval.json (models/README):
     `nominal` (100 episodes on the nominal plant, `evaluate`), `grid_in_process` and `sitl`."""
-    from quadpilot.train.evaluate import evaluate
+    from quadpilot.train.envs.evaluate import evaluate
 
     data = json.loads(Path(eval_path).read_text())
     nominal = dataclasses.replace(policy.env_config, randomization=None)
@@ -523,7 +524,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _study(args) -> int:
-    from quadpilot.train.runs.checkpoint import CheckpointError, load_policy
+    from quadpilot.train.algorithms import load_policy
+    from quadpilot.train.runs.checkpoint import CheckpointError
 
     controllers = []
     onnx = {}

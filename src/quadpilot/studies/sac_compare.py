@@ -121,7 +121,7 @@ def plot(runs: list[dict], png: Path, title: str) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from quadpilot.console import atomic_write
+    from quadpilot.atomic_files import atomic_write
 
     fig = Figure(figsize=(10, 6), layout="constrained")
     FigureCanvasAgg(fig)

@@ -31,13 +31,13 @@ import textwrap
 
 from quadpilot.console import Parser, UsageError, docs_quick, positive_float, quick
 
-from .options import (
+from .runs.options import (
     PPO_NETWORK_OPTIONS,
     PPO_UPDATE_OPTIONS,
     SIZE_OPTIONS,
     check_heading_offset,
     check_motor_tau,
-    resolve_vehicle,
+    resolve_vehicle_arg,
     upper_bounds,
 )
 
@@ -186,7 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="POLICY.pt",
         help="Start the network from this PPO policy (policy.pt or a checkpoint): its shape, weights (action head in "
         "this vehicle's rotor order) and observation statistics; optimiser, schedule and seed are this run's "
-        "(quadpilot.train.runs.init_from). For fine-tuning a generalist (--randomize airframes) on one --vehicle. "
+        "(quadpilot.train.ppo.init_from). For fine-tuning a generalist (--randomize airframes) on one --vehicle. "
         "Default: a fresh network",
     )
     p.add_argument(
@@ -265,14 +265,14 @@ def _add_sensor_options(p: argparse.ArgumentParser) -> None:
         choices=("mlp", "lstm"),
         help="PPO's network (ppo only, as --obs-history and --bptt-steps): mlp (two tanh layers each for actor "
         "and critic) or lstm (one LSTM layer each, trained "
-        "on sequences with the hidden state reset at episode starts; quadpilot.train.recurrent_ppo). Default: "
+        "on sequences with the hidden state reset at episode starts; quadpilot.train.ppo.recurrent). Default: "
         "the preset's, else mlp.",
     )
     p.add_argument(
         "--update",
         choices=("numpy", "torch"),
         help="How PPO computes its update and the rollout's forward passes (ppo only): numpy (the loss, its "
-        "hand-written gradient, the gradient clip and Adam in NumPy, quadpilot.train.numpy_ppo; --arch mlp "
+        "hand-written gradient, the gradient clip and Adam in NumPy, quadpilot.train.ppo.numpy_ppo; --arch mlp "
         "only) or torch (autograd and torch.optim.Adam, the reference). The two agree to float32 rounding, "
         "not bit for bit. Default: numpy for mlp, torch for lstm.",
     )
@@ -340,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         if args.snapshot_every and args.algo == "sb3":
             raise UsageError("--snapshot-every is for our PPO and SAC; --algo sb3 writes no snapshots")
-        resolve_vehicle(args)
+        resolve_vehicle_arg(args)
         if args.vehicle is not None and args.randomize == "airframes":  # its rotor aerodynamics would go to every draw
             raise UsageError(
                 "--vehicle with --randomize airframes: the training draws every episode's airframe itself; "
@@ -358,16 +358,18 @@ def main(argv: list[str] | None = None) -> int:
         if args.teacher is not None and args.contract is None:
             raise UsageError("--teacher is for --contract px4-raptor (the policy distilled from it)")
         if args.contract is not None:
-            from . import raptor_cli
+            from .algorithms import ALGORITHMS
+            from .raptor import cli as raptor_cli
 
-            return raptor_cli.train_from_cli(args, argv)
+            return raptor_cli.train_from_cli(args, argv, ALGORITHMS)
         if args.algo == "sb3":
             from . import sb3_baseline
 
             return sb3_baseline.train_from_cli(args, argv)
+        from .algorithms import ALGORITHMS
         from .runs.loop import train
 
-        return train(args, argv)
+        return train(args, argv, ALGORITHMS)
     except SystemExit as e:  # --help
         return e.code if isinstance(e.code, int) else 0
     except UsageError as e:
@@ -390,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(e, UnknownVehicleError):  # --vehicle: neither a shipped name nor a file path
             print(f"quad-train: error: --vehicle: {e}", file=sys.stderr)
             return 2
-        from .raptor_distill import StudentCheckpointError
+        from .raptor.distill import StudentCheckpointError
 
         if isinstance(e, (CheckpointError, NonFiniteError, RunDirBusy, VehicleFileError, StudentCheckpointError)):
             print(f"quad-train: error: {e}", file=sys.stderr)

@@ -39,7 +39,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 
 from .envs import EnvConfig, QuadVectorEnv
 from .ppo import PPOConfig
@@ -386,10 +386,9 @@ def train_from_cli(args, argv: list[str]) -> int:
     PPO, with SB3 doing the learning. No resume (SB3 checkpoints pickle)."""
     from quadpilot.console import UsageError
 
-    from . import options, plotting
     from .envs import make_config
     from .ppo import PPO
-    from .runs import runlog
+    from .runs import options, plotting, runlog
     from .runs.loop import Progress, Stop, command, evaluate_and_advance, final_evaluation, now, time_breakdown
 
     if args.resume:

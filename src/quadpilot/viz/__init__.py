@@ -2,9 +2,10 @@
 (`render_flight_video`) and several flights side by side on one clock (`render_montage`), from
 `FlightTrace`s recorded by quad-sitl or an in-process evaluation.
 
-Imports NumPy and `quadpilot.core` only; matplotlib is imported inside the drawing functions, so
-`import quadpilot.viz` works without it and the functions raise `VizUnavailable` with what to
-install. Figures use their own Agg canvas: no pyplot, no `matplotlib.use`, no global state.
+Imports NumPy, `quadpilot.core` and `quadpilot.atomic_files` only; matplotlib is imported inside
+the drawing functions, so `import quadpilot.viz` works without it and the functions raise
+`VizUnavailable` with what to install. Figures use their own Agg canvas: no pyplot, no
+`matplotlib.use`, no global state.
 
     from quadpilot.viz import FlightTrace, plot_flight, render_flight_video, render_montage
     traces = [FlightTrace.from_episode_log(log, target=(0, 0, 2)) for log in logs]

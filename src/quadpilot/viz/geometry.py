@@ -13,8 +13,9 @@ import math
 import numpy as np
 
 from quadpilot.core.frames import euler_to_rotmat
-from quadpilot.core.params import QUAD_X_UNIT, SEED_VEHICLE, get_preset
+from quadpilot.core.params import QUAD_X_UNIT
 from quadpilot.core.state import ATT, PITCH, POS, ROLL, STATE_DIM, YAW
+from quadpilot.core.vehicle_file import SEED_VEHICLE, get_preset
 
 
 def _rotors_unit(layout) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 Made for a "learning montage" (the same start state flown by the early, middle and final policy
 snapshots of a training run: `python -m quadpilot.studies.learning_montage`), but any flights will do. Each
-panel is the video module's drawing (`video._Scene`, layout "below"): the 3-D view with the
+panel is the video module's drawing (`video.FlightScene`, layout "below"): the 3-D view with the
 quadrotor, its trail and the target, and under it the position error over the whole flight with a
 cursor. A title strip on top of each panel holds its label (e.g. training steps and error).
 
@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_output
+from quadpilot.atomic_files import atomic_output
 
 from ._mpl import new_figure
 from .geometry import arm_length_of
 from .plot import ERROR_FLOOR_M
 from .trace import FlightTrace
-from .video import MIN_VIEW_HALF, _check_options, _Scene, frame_times, indices_at
+from .video import MIN_VIEW_HALF, FlightScene, checked_animation_writer, frame_times, indices_at
 
 TITLE_HEIGHT = 0.13
 """Fraction of the figure's height above the panels for their titles (two lines of 7 pt at 300 px)."""
@@ -68,7 +68,7 @@ def render_montage(
     if isinstance(labels, str) or len(labels) != len(traces):
         raise ValueError(f"render_montage: {len(traces)} traces need {len(traces)} labels, got {labels!r}")
     out = Path(out)
-    writer = _check_options("render_montage", out, fps, size_px, trail_s, exaggerate)
+    writer = checked_animation_writer("render_montage", out, fps, size_px, trail_s, exaggerate)
     arm = arm_length_of(arm_length)
 
     t_end = max(t.duration for t in traces)
@@ -90,7 +90,7 @@ def render_montage(
     scenes = []
     for i, (trace, label) in enumerate(zip(traces, labels, strict=True)):
         rect = (i / n, 0.0, 1.0 / n, 1.0 - TITLE_HEIGHT)
-        scene = _Scene(
+        scene = FlightScene(
             fig,
             trace,
             arm,

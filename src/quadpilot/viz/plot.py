@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_output
+from quadpilot.atomic_files import atomic_output
 from quadpilot.core.dynamics import ATT, MOTOR_NAMES, VEL
 from quadpilot.core.mission import SUCCESS_TOLERANCE_M
 
@@ -93,7 +93,7 @@ def plot_flight(
     kinds: set[str] = set()
     any_failsafe = False
     for k, tr in enumerate(traces):
-        spans = _merged_spans(tr)
+        spans = merged_spans(tr)
         kinds.update(src for _, _, src in spans)
         for ax in time_axes:
             if ax is ax_cmd and k != commands_of % n:  # the commands panel shows one episode
@@ -217,7 +217,7 @@ def _episode_colours(n: int) -> list:
     return [cmap(k / (n - 1)) for k in range(n)]
 
 
-def _merged_spans(tr: FlightTrace, gap_s: float = 0.05) -> list[tuple[float, float, str]]:
+def merged_spans(tr: FlightTrace, gap_s: float = 0.05) -> list[tuple[float, float, str]]:
     """Non-policy spans with same-source runs closer than `gap_s` joined: a source flickering every
     step would otherwise be hundreds of rectangles per panel."""
     merged: list[tuple[float, float, str]] = []
@@ -260,7 +260,7 @@ def _draw_path_3d(ax, traces: list[FlightTrace], colours, alpha: float, lw: floa
     for target in fixed_targets:
         ax.scatter(*target, color="k", marker="*", s=90, depthshade=False, zorder=5)
         pts.append(target[None])
-    _cube_limits(ax, np.concatenate(pts), zoom=1.05)
+    set_cube_limits(ax, np.concatenate(pts), zoom=1.05)
     ax.set_xlabel("x [m]", fontsize=8, labelpad=-2)
     ax.set_ylabel("y [m]", fontsize=8, labelpad=-2)
     ax.set_zlabel("z [m]", fontsize=8, labelpad=-2)
@@ -274,7 +274,7 @@ def _draw_path_3d(ax, traces: list[FlightTrace], colours, alpha: float, lw: floa
         ax.legend(handles, labels, fontsize=7, loc="upper left")
 
 
-def _cube_limits(
+def set_cube_limits(
     ax, pts: np.ndarray, min_half: float = 0.15, margin: float = 1.08, pad: float = 0.0, zoom: float = 1.0
 ) -> float:
     """Equal scales on the three axes: a cube around the finite points, half width

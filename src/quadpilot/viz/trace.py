@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_output
+from quadpilot.atomic_files import atomic_output
 from quadpilot.core.dynamics import NUM_MOTORS, POS, STATE_DIM
 
 NPZ_FORMAT = 1

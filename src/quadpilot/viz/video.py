@@ -12,9 +12,9 @@ dashed path with a moving dot). When the true arm is under 4 % of the view's wid
 drawn with arms ×3 (`geometry.display_arm`), and the frame says so. Right, the position error and
 the motor commands over the whole flight, with a cursor at the current time.
 
-The drawing of one flight (`_Scene`) also makes each panel of `montage.render_montage`. A .gif is
-written with one palette for all its frames and each frame's unchanged pixels stored as
-transparent (`_gif_writer_class`): 3–7× smaller than matplotlib's PillowWriter, same look.
+The drawing of one flight (`FlightScene`) also makes each panel of `montage.render_montage`. A
+.gif is written with one palette for all its frames and each frame's unchanged pixels stored as
+transparent (`gif_writer_class`): 3–7× smaller than matplotlib's PillowWriter, same look.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_output
+from quadpilot.atomic_files import atomic_output
 from quadpilot.core.dynamics import ATT, POS
 
 from ._mpl import MATPLOTLIB_MISSING, VizUnavailable, new_figure
@@ -35,8 +35,8 @@ from .plot import (
     FAILSAFE_COLOUR,
     OTHER_SOURCE_COLOUR,
     SOURCE_COLOURS,
-    _cube_limits,
-    _merged_spans,
+    merged_spans,
+    set_cube_limits,
 )
 from .trace import POLICY, FlightTrace
 
@@ -106,13 +106,13 @@ def render_flight_video(
     if not isinstance(trace, FlightTrace):
         raise ValueError(f"render_flight_video: expected one FlightTrace, got {type(trace).__name__}")
     out = Path(out)
-    writer = _check_options("render_flight_video", out, fps, size_px, trail_s, exaggerate)
+    writer = checked_animation_writer("render_flight_video", out, fps, size_px, trail_s, exaggerate)
     arm = arm_length_of(arm_length)
     frames = frame_indices(trace, fps, speed)
 
     width, height = size_px
     fig = new_figure(width / dpi, height / dpi, dpi)
-    scene = _Scene(fig, trace, arm, trail_s, exaggerate)
+    scene = FlightScene(fig, trace, arm, trail_s, exaggerate)
 
     with atomic_output(out) as tmp, writer.saving(fig, str(tmp), dpi):
         for k in frames:
@@ -121,7 +121,7 @@ def render_flight_video(
     return out
 
 
-def _check_options(who: str, out: Path, fps, size_px, trail_s, exaggerate):
+def checked_animation_writer(who: str, out: Path, fps, size_px, trail_s, exaggerate):
     """Check the options every animation takes; returns the matplotlib writer for `out`."""
     suffix = out.suffix.lower()
     if suffix not in VIDEO_FORMATS:
@@ -149,7 +149,7 @@ def _writer(suffix: str, fps: int):
             import PIL  # noqa: F401  (matplotlib depends on pillow; say so if it is gone anyway)
         except ImportError as e:
             raise VizUnavailable("a .gif needs pillow: pip install pillow") from e
-        return _gif_writer_class()(fps=fps)
+        return gif_writer_class()(fps=fps)
     if not animation.FFMpegWriter.isAvailable():
         raise VizUnavailable(
             "an .mp4 needs ffmpeg, which is not on PATH: install ffmpeg (e.g. apt-get install ffmpeg), "
@@ -167,7 +167,7 @@ NEAR_WHITE_BLACK = 8
 
 
 @functools.cache
-def _gif_writer_class():
+def gif_writer_class():
     """matplotlib's PillowWriter, writing a smaller GIF: one palette for every frame (median cut
     over a sample of frames, plus exact white and black so the background stays white), no
     dithering, and Pillow's `optimize`, which then stores each frame's unchanged pixels as
@@ -241,7 +241,7 @@ def _inside(rect: tuple[float, float, float, float], box: tuple[float, float, fl
     return (x + bx * w, y + by * h, bw * w, bh * h)
 
 
-class _Scene:
+class FlightScene:
     """The artists of one flight's drawing, created once and moved per frame.
 
     rect: the part of the figure it owns (figure fractions); layout: a key of `LAYOUTS`.
@@ -277,7 +277,7 @@ class _Scene:
         ax = fig.add_axes(_inside(rect, boxes["view"]), projection="3d")
         self.ax = ax
         pts = np.concatenate([pos, trace.target_path]) if view_points is None else np.asarray(view_points)
-        half = _cube_limits(ax, pts, min_half=MIN_VIEW_HALF)
+        half = set_cube_limits(ax, pts, min_half=MIN_VIEW_HALF)
         if exaggerate is None:
             self.arm, factor = display_arm(arm, 2 * half)
         else:
@@ -315,7 +315,7 @@ class _Scene:
         )
         ax.add_collection3d(self.discs)
         # pad: room for the drawn vehicle
-        _cube_limits(ax, pts, min_half=MIN_VIEW_HALF, pad=1.5 * self.arm, zoom=boxes["zoom"])
+        set_cube_limits(ax, pts, min_half=MIN_VIEW_HALF, pad=1.5 * self.arm, zoom=boxes["zoom"])
         self.floor = ax.get_zlim()[0]
 
         def text(where: str, **kw):
@@ -353,7 +353,7 @@ class _Scene:
         for a in panels:
             a.tick_params(labelsize=6, pad=1, length=2)
             a.grid(True, lw=0.3, alpha=0.5)
-            for t0, t1, src in _merged_spans(trace):
+            for t0, t1, src in merged_spans(trace):
                 a.axvspan(t0, t1, color=SOURCE_COLOURS.get(src, OTHER_SOURCE_COLOUR), alpha=0.3, lw=0)
             if trace.failsafe_time is not None:
                 a.axvline(trace.failsafe_time, color=FAILSAFE_COLOUR, ls="-.", lw=0.8)

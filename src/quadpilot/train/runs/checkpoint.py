@@ -12,39 +12,40 @@ Snapshots (`save_snapshot`, quad-train --snapshot-every) are `snapshots/policy-<
 format with the weights and normaliser of that moment and no optimizer, trainer or environment
 state (`trainer.Trainer.policy_dict`), so each loads, exports and flies like policy.pt.
 
-Writes are atomic (`console.atomic_write`: a temporary file in the same directory, flushed and
+Writes are atomic (`atomic_files.atomic_write`: a temporary file in the same directory, flushed and
 fsync'd, then `os.replace`, then the directory fsync'd), so a crash or `kill -9` leaves either the
 old file or the new one, never half of one. For resuming, `save_for_resume` keeps two generations
 (`checkpoint.pt` and `checkpoint.prev.pt`), and `load_for_resume` falls back to the older one if the
 newer is unreadable. Reading a file checks every entry (`checkpoint_read.load_checkpoint`) before
 anything is built from it.
+
+No algorithm is named here: the readers take the registry (`train.algorithms.ALGORITHMS`, where
+`load_policy` and `load_trainer` are bound to it), and `TrainedPolicy` asks the checkpoint's
+Trainer class for its network (`Trainer.policy_settings`, `Trainer.policy_network`). PPO's own
+checkpoint helpers are `train.ppo.checkpoint`'s.
 """
 
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 
-from ..algorithms import ALGORITHMS
 from ..envs import EnvConfig
-from ..policy_actor import DeterministicActor
-from ..ppo import PPO, PPOConfig
+from ..envs.history import history_dim
+from ..networks.actor import DeterministicActor
 from .checkpoint_read import load_checkpoint
 from .checks import (
     MAX_BATCH,
     MAX_ENVS,
     MAX_OBS_HISTORY,
     MAX_THREADS,
-    SCHEMA,
     CheckpointError,
     one_line,
-    plain,
     rms_state,
     short,
 )
@@ -64,91 +65,20 @@ def checkpoint_dict(agent: Trainer, extra: dict | None = None) -> dict:
     return agent.checkpoint_dict(extra)
 
 
-def ppo_state_dict(ppo: PPO) -> dict:
-    """Everything that changes while `ppo` trains, as tensors and plain data (copies, not views):
-    `Trainer.state_dict`, with PPO's entries from `PPO.own_state` (the normaliser's statistics
-    among them, whether or not it was used)."""
-    return ppo.state_dict()
+def trainer_from_checkpoint(
+    ckpt: dict, algorithms: dict, cfg=None, source: str = "checkpoint", directory=None
+) -> Trainer:
+    """The trainer of the checkpoint's algorithm (found in the registry `algorithms`), rebuilt and
+    ready to continue (`Trainer.from_checkpoint`)."""
+    return algorithms[ckpt.get("algo", "ppo")].from_checkpoint(ckpt, cfg, source, directory)
 
 
-def load_ppo_state(ppo: PPO, state: dict, source: str = "checkpoint") -> None:
-    """Put `state` (from `ppo_state_dict` or a loaded checkpoint) into `ppo`, which must have been
-    built with the same configuration. Raises CheckpointError if anything does not fit."""
-    ppo.load_state_dict(state, source)
-
-
-def trainer_from_checkpoint(ckpt: dict, cfg=None, source: str = "checkpoint", directory=None) -> Trainer:
-    """The trainer of the checkpoint's algorithm, rebuilt and ready to continue (`Trainer.from_checkpoint`)."""
-    return ALGORITHMS[ckpt.get("algo", "ppo")].from_checkpoint(ckpt, cfg, source, directory)
-
-
-def ppo_from_checkpoint(ckpt: dict, cfg: PPOConfig | None = None, source: str = "checkpoint") -> PPO:
-    """A PPO trainer rebuilt from a loaded checkpoint, ready to continue. `cfg` may replace the
-    stored PPOConfig (e.g. a longer total_steps); the network and batch shapes must still fit."""
-    return PPO.from_checkpoint(ckpt, cfg, source)
-
-
-def load_trainer(path: str | os.PathLike) -> Trainer:
+def load_trainer(path: str | os.PathLike, algorithms: dict) -> Trainer:
     """The trainer of a checkpoint file, with what lies beside it (SAC's replay chunks)."""
     path = Path(path)
-    return trainer_from_checkpoint(load_checkpoint(path), source=str(path), directory=path.parent)
-
-
-def policy_checkpoint_dict(
-    model: torch.nn.Module,
-    ppo_cfg: PPOConfig,
-    env_cfg: EnvConfig,
-    global_step: int = 0,
-    *,
-    obs_rms=None,
-    updates: int = 0,
-    extra: dict | None = None,
-) -> dict:
-    """A deployable policy file (policy.pt format) without optimizer, trainer or environment state:
-    it loads, exports and flies but cannot be resumed. For a network PPO did not train (e.g. a
-    freshly built `RecurrentActorCritic` to test export and runtime on; identity normaliser), or a
-    training snapshot (`save_snapshot`: the run's `obs_rms`, `updates` and `extra`)."""
-    from quadpilot.core.normalize import RunningMeanStd
-
-    rms = obs_rms if obs_rms is not None else RunningMeanStd((env_cfg.layout.dim,))
-    if extra is None:
-        extra = {"note": "not trained by PPO: built to test export and runtime"}
-    return plain(
-        {
-            "schema": SCHEMA,
-            "algo": "ppo",
-            "created_unix": time.time(),
-            "ppo_config": ppo_cfg.to_json(),
-            "env_config": env_cfg.to_json(),
-            "obs_layout": env_cfg.layout.to_json(),
-            "model": {k: v.detach().clone() for k, v in model.state_dict().items()},
-            "optimizer": {},
-            "obs_rms": rms.state_dict(),
-            "global_step": int(global_step),
-            "updates": int(updates),
-            "trainer": {},
-            "env": {},
-            "rng": {},
-            "extra": dict(extra),
-        }
+    return trainer_from_checkpoint(
+        load_checkpoint(path, algorithms), algorithms, source=str(path), directory=path.parent
     )
-
-
-def save_untrained_policy(
-    path: str | os.PathLike, ppo_cfg: PPOConfig, env_cfg: EnvConfig, seed: int = 0, head_gain: float = 1.0
-) -> Path:
-    """Write a policy file for a freshly initialised network of `ppo_cfg.arch`, its action head
-    re-initialised with `head_gain` (the training init, 0.01, makes every action ≈ 0, which would
-    make a parity test blind). For testing and benchmarking export and runtime on architectures
-    PPO does not train yet (the LSTM)."""
-    from ..networks import build_actor_critic
-
-    torch.manual_seed(seed)
-    model = build_actor_critic(env_cfg.layout.dim, 4, ppo_cfg)
-    head = model.actor_head if getattr(model, "recurrent", False) else model.actor[-1]
-    torch.nn.init.orthogonal_(head.weight, head_gain)
-    data = policy_checkpoint_dict(model, ppo_cfg, env_cfg)
-    return atomic_write(path, lambda f: torch.save(data, f))
 
 
 # --- files ----------------------------------------------------------------------------------
@@ -157,7 +87,7 @@ def save_untrained_policy(
 def save_checkpoint(
     path: str | os.PathLike, agent: Trainer, extra: dict | None = None, keep_previous: str | None = None
 ) -> Path:
-    """Write `agent` (and the JSON-able `extra`) to `path` atomically; see `console.atomic_write`."""
+    """Write `agent` (and the JSON-able `extra`) to `path` atomically; see `atomic_files.atomic_write`."""
     data = agent.checkpoint_dict(extra)
     return atomic_write(path, lambda f: torch.save(data, f), keep_previous)
 
@@ -173,17 +103,17 @@ def has_checkpoint(directory: str | os.PathLike) -> bool:
     return (d / LATEST).exists() or (d / PREVIOUS).exists()
 
 
-def load_for_resume(directory: str | os.PathLike) -> tuple[dict, Path, str | None]:
+def load_for_resume(directory: str | os.PathLike, algorithms: dict) -> tuple[dict, Path, str | None]:
     """The newest readable checkpoint in `directory`: (checkpoint, its path, warning or None).
 
     Tries `checkpoint.pt`, then `checkpoint.prev.pt`; the warning says why the newer one was
     skipped. Raises CheckpointError with both reasons if neither can be read."""
     d = Path(directory)
     try:
-        return load_checkpoint(d / LATEST), d / LATEST, None
+        return load_checkpoint(d / LATEST, algorithms), d / LATEST, None
     except CheckpointError as latest_error:
         try:
-            ckpt = load_checkpoint(d / PREVIOUS)
+            ckpt = load_checkpoint(d / PREVIOUS, algorithms)
         except CheckpointError as prev_error:
             raise CheckpointError(f"no usable checkpoint in {d}: {latest_error}; and {prev_error}") from None
         warning = f"{latest_error}; resuming from the previous checkpoint {d / PREVIOUS} instead"
@@ -224,19 +154,15 @@ class TrainedPolicy:
 
     Build with `load_policy(path)`. `env_config` is the environment it was trained on."""
 
-    def __init__(self, ckpt: dict, source: str = "checkpoint") -> None:
+    def __init__(self, ckpt: dict, algorithm: type[Trainer], source: str = "checkpoint") -> None:
         from quadpilot.core.normalize import RunningMeanStd
         from quadpilot.core.observation import get_layout
-
-        from ..history import network_input_dim
-        from ..networks import build_actor_critic
 
         self.source = source
         self.algo = ckpt.get("algo", "ppo")
         try:  # `load_checkpoint` checked the entries; this builds them and checks that they fit
-            # PPO: ppo_config; SAC (quadpilot.train.sac): sac_config, raw observations, actor tanh(mean)
-            self.ppo_config = PPOConfig.from_json(ckpt["ppo_config"]) if self.algo == "ppo" else None
-            self.normalize_obs = bool(self.ppo_config.normalize_obs) if self.ppo_config is not None else False
+            # the algorithm's `policy_settings` (PPO: its ppo_config; SAC: raw observations, no history)
+            self.config, self.normalize_obs, self.obs_history = algorithm.policy_settings(ckpt)
             self.env_config = EnvConfig.from_json(ckpt["env_config"])
             self.layout = get_layout(ckpt["obs_layout"]["name"])
         except (KeyError, TypeError, ValueError) as e:
@@ -246,11 +172,9 @@ class TrainedPolicy:
                 f"{source}: observation layout {self.layout.name!r} does not match its {self.env_config.task} "
                 f"environment, which uses {self.env_config.layout.name!r}"
             )
-        c = self.ppo_config
-        self.obs_history = int(c.obs_history) if c is not None else 1
-        in_dim = network_input_dim(self.layout.dim, c)  # the stacked input of a history policy
+        in_dim = history_dim(self.layout.dim, self.obs_history)  # the stacked input of a history policy
         try:
-            self.model = build_actor_critic(in_dim, 4, c).eval() if c is not None else self._sac_actor(ckpt)
+            self.model, self.config = algorithm.policy_network(ckpt, self.layout.dim, self.config)
         except (KeyError, TypeError, ValueError) as e:
             raise CheckpointError(f"{source}: its configuration does not describe a network ({one_line(e)})") from None
         try:
@@ -269,12 +193,6 @@ class TrainedPolicy:
         normalize = self.obs_rms.normalize if self.normalize_obs else lambda x: np.asarray(x, np.float32)
         self._act = DeterministicActor(self.model, normalize, self.layout.dim, self.obs_history)
 
-    def _sac_actor(self, ckpt: dict):
-        from ..sac import SACConfig, build_actor
-
-        self.sac_config = SACConfig.from_json(ckpt["sac_config"])
-        return build_actor(self.layout.dim, self.sac_config).eval()
-
     @property
     def recurrent(self) -> bool:
         """An LSTM policy (explicit h, c state; exports with h_in/c_in)."""
@@ -291,7 +209,7 @@ class TrainedPolicy:
             raise ValueError(f"observations must have shape (N, {self.layout.dim}), got {raw_obs.shape}")
         return raw_obs
 
-    def _input(self, raw_obs: np.ndarray) -> torch.Tensor:
+    def network_input(self, raw_obs: np.ndarray) -> torch.Tensor:
         """The network's input for raw observations (N, obs_dim), normalised if the run normalised."""
         return self._act.network_input(self._check(raw_obs))
 
@@ -309,6 +227,8 @@ class TrainedPolicy:
         return self._act.step(self._check(raw_obs), state)
 
 
-def load_policy(path: str | os.PathLike) -> TrainedPolicy:
-    """The deterministic policy in a checkpoint (policy.pt); CheckpointError if it cannot be used."""
-    return TrainedPolicy(load_checkpoint(path), source=str(path))
+def load_policy(path: str | os.PathLike, algorithms: dict) -> TrainedPolicy:
+    """The deterministic policy in a checkpoint (policy.pt) of one of `algorithms` (the registry);
+    CheckpointError if it cannot be used."""
+    ckpt = load_checkpoint(path, algorithms)
+    return TrainedPolicy(ckpt, algorithms[ckpt.get("algo", "ppo")], source=str(path))

@@ -1,13 +1,15 @@
 """Reading a checkpoint file: loaded with torch's weights-only reader and every entry checked, in
 this one module (`load_checkpoint`, `check_content`), with the value checks of `checks`, before
-anything is built from it (`checkpoint.trainer_from_checkpoint`, `checkpoint.load_policy`)."""
+anything is built from it (`checkpoint.trainer_from_checkpoint`, `checkpoint.load_policy`).
+
+It knows no algorithm: the caller hands it the registry (`train.algorithms.ALGORITHMS`, name →
+`Trainer` class), whose classes name their configuration and entries and check their own."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-from ..algorithms import ALGORITHMS
 from ..envs import EnvConfig
 from .checks import (
     MAX_FILE_BYTES,
@@ -31,8 +33,9 @@ REQUIRED = (
 """The entries of every checkpoint, with the algorithm's configuration and `Trainer.required`."""
 
 
-def load_checkpoint(path: str | os.PathLike) -> dict:
-    """Read and check a checkpoint with `torch.load(weights_only=True)` (no code in the file runs).
+def load_checkpoint(path: str | os.PathLike, algorithms: dict) -> dict:
+    """Read and check a checkpoint of one of `algorithms` (the registry) with
+    `torch.load(weights_only=True)` (no code in the file runs).
 
     Raises CheckpointError naming the file and what was wrong if it is missing, too large,
     truncated, not a torch file, not a quadpilot checkpoint, of another schema version, or if any
@@ -56,25 +59,25 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     if not isinstance(ckpt["schema"], str) or ckpt["schema"] != SCHEMA:
         raise CheckpointError(f"{path}: schema {short(ckpt['schema'])}; this version of quadpilot reads {SCHEMA!r}")
     algo = ckpt.get("algo", "ppo")
-    if not isinstance(algo, str) or algo not in ALGORITHMS:
+    if not isinstance(algo, str) or algo not in algorithms:
         raise CheckpointError(
-            f"{path}: trained by {short(algo)}; this version of quadpilot reads {' and '.join(ALGORITHMS)} checkpoints"
+            f"{path}: trained by {short(algo)}; this version of quadpilot reads {' and '.join(algorithms)} checkpoints"
         )
-    cls = ALGORITHMS[algo]
+    cls = algorithms[algo]
     missing = [k for k in (*REQUIRED, cls.config_key(), *cls.required) if k not in ckpt]
     if missing:
         raise CheckpointError(f"{path}: schema {SCHEMA!r} but missing {missing}; the file is damaged")
-    check_content(ckpt, str(path))
+    check_content(ckpt, str(path), cls)
     return ckpt
 
 
-def check_content(ckpt: dict, source: str) -> None:
+def check_content(ckpt: dict, source: str, algo: type) -> None:
     """Check every entry of a loaded checkpoint whose top-level keys are present (see
-    `load_checkpoint`): types, ranges, finite weights, and that the configurations it holds can
-    be built and describe networks and batches of a sane size. Raises CheckpointError."""
+    `load_checkpoint`; `algo` is its algorithm's Trainer class): types, ranges, finite weights,
+    and that the configurations it holds can be built and describe networks and batches of a sane
+    size. Raises CheckpointError."""
     from quadpilot.core.observation import get_layout
 
-    algo = ALGORITHMS[ckpt.get("algo", "ppo")]
     key = algo.config_key()
     try:
         cfg = build_config(algo.Config, ckpt[key], key)

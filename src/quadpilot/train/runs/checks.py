@@ -283,7 +283,7 @@ def check_obs_rms(d: Any, where: str) -> None:
 
 def check_extra(extra: Any, where: str) -> None:
     """The caller's free data; the entries quad-train and the montage read back are checked."""
-    from ..curriculum import CurriculumConfig
+    from ..envs.curriculum import CurriculumConfig
 
     if not isinstance(extra, dict):
         raise ValueError(f"{where}: expected a table, found {short(extra)}")
@@ -315,7 +315,7 @@ def check_extra(extra: Any, where: str) -> None:
 def check_trainer(tr: Any, where: str) -> None:
     if not isinstance(tr, dict):
         raise ValueError(f"{where}: expected a table, found {short(tr)}")
-    if not tr:  # a deployable file (policy_checkpoint_dict): nothing to resume
+    if not tr:  # a deployable file (`ppo.checkpoint.policy_checkpoint_dict`, a snapshot): nothing to resume
         return
     check_count(tr.get("nonfinite_streak"), f"{where}.nonfinite_streak")
     for name, kind in (("ep_returns", float), ("ep_lengths", int), ("ep_success", bool)):

@@ -1,4 +1,6 @@
 """The one run loop of quad-train, for every algorithm (a `trainer.Trainer`: PPO, recurrent PPO, SAC).
+It knows none of them by name: `train` is handed the registry (`train.algorithms.ALGORITHMS`) and
+asks the chosen Trainer class what differs (its configuration, preset, --init-from, checkpoint).
 
 A run checks and locks its directory (fresh: new or empty; --resume: the newest readable
 checkpoint, whose configuration it keeps but for --total-steps and --threads), then iterates. Per
@@ -30,17 +32,8 @@ import torch
 
 from quadpilot.console import UsageError
 
-from .. import options
-from ..algorithms import ALGORITHMS
-from . import init_from
-from .checkpoint import (
-    POLICY,
-    has_checkpoint,
-    load_for_resume,
-    save_checkpoint,
-    save_snapshot,
-    trainer_from_checkpoint,
-)
+from . import options
+from .checkpoint import POLICY, has_checkpoint, load_for_resume, save_checkpoint, save_snapshot
 from .runlog import (
     MetricsLog,
     check_run_dir_free,
@@ -268,7 +261,7 @@ def _check_resume_dir(out: Path) -> None:
 
 
 def _clean_stale_temps(out: Path) -> None:
-    """Temporary files of a write that a kill interrupted (see console.atomic_output)."""
+    """Temporary files of a write that a kill interrupted (see atomic_files.atomic_output)."""
     for f in out.glob(".*.tmp*"):
         if any(f.name.startswith(f".{name}.") for name in RUN_FILES):
             f.unlink(missing_ok=True)
@@ -293,7 +286,7 @@ class Run:
 def _curriculum(task: str, agent, state: dict | None = None):
     """The waypoint curriculum of a run (None for the other tasks), restored from `state` (a
     checkpoint's) with the agent's environment set to the radius it had reached."""
-    from ..curriculum import CurriculumConfig, WaypointCurriculum
+    from ..envs.curriculum import CurriculumConfig, WaypointCurriculum
 
     if state is None and task != "waypoint":
         return None
@@ -306,16 +299,15 @@ def _curriculum(task: str, agent, state: dict | None = None):
     return cur
 
 
-def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
-    from ..curriculum import CurriculumConfig
+def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str], algorithms: dict) -> Run:
     from ..envs import make_config
+    from ..envs.curriculum import CurriculumConfig
 
     _check_fresh_dir(out)
-    preset = (args.preset or "fast") if algo.algo == "ppo" else None
+    preset = (args.preset or algo.default_preset) if algo.default_preset else None
     source = None
     if getattr(args, "init_from", None) is not None:  # a fine-tune: the file's network and weights
-        source = init_from.load_source(args.init_from)
-        explicit = init_from.network_options(source, explicit, args.init_from)
+        source, explicit = algo.init_from(args.init_from, explicit, algorithms)
     cfg = options.make_config(algo, explicit, preset)
     env_kw = options.env_kwargs(args)
     if args.task == "waypoint":
@@ -325,7 +317,7 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
         agent = algo(cfg, env_cfg)  # before any file is written: a failure here leaves no half-made run
     except ValueError as e:
         raise UsageError(f"{algo.algo.upper()} configuration: {e}") from None
-    started_from = init_from.start_from(agent, source, args.init_from) if source is not None else None
+    started_from = agent.start_from(source, args.init_from) if source is not None else None
     _claim_fresh_dir(out)
     cur = _curriculum(args.task, agent)
     values = {
@@ -352,9 +344,9 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
     return Run(agent, cur, preset, 0.0, None)
 
 
-def resume(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
+def resume(args, algo, explicit: dict, out: Path, argv: list[str], algorithms: dict) -> Run:
     _check_resume_dir(out)
-    ckpt, used, warning = load_for_resume(out)  # CheckpointError: a bad file, exit 1 (cli.main)
+    ckpt, used, warning = load_for_resume(out, algorithms)  # CheckpointError: a bad file, exit 1 (cli.main)
     stored_algo = ckpt.get("algo", "ppo")
     if stored_algo != algo.algo:
         raise UsageError(f"{out} holds a {stored_algo} run; resume it with --algo {stored_algo}")
@@ -380,7 +372,7 @@ def resume(args, algo, explicit: dict, out: Path, argv: list[str]) -> Run:
         )
     _clean_stale_temps(out)
     algo.clean_stale_files(out)
-    agent = trainer_from_checkpoint(ckpt, cfg, source=str(used), directory=out)
+    agent = algo.from_checkpoint(ckpt, cfg, source=str(used), directory=out)
     cur = _curriculum(task, agent, extra.get("curriculum"))
     try:  # metrics.csv cut back to the checkpoint's iterations, the resume recorded in config.json
         dropped = truncate_metrics(out / "metrics.csv", agent.updates, algo.columns)
@@ -407,13 +399,14 @@ def default_out(task: str, algo, seed: int) -> Path:
     return Path(f"runs/{task}-{algo.tag + '-' if algo.tag else ''}seed{seed}")
 
 
-def train(args, argv: list[str]) -> int:
-    """`quad-train --algo ppo|sac ...` from parsed flags: start or resume, iterate, finish."""
-    algo = ALGORITHMS[args.algo]
+def train(args, argv: list[str], algorithms: dict) -> int:
+    """`quad-train --algo ppo|sac ...` from parsed flags: start or resume, iterate, finish.
+    `algorithms` is the registry (name → Trainer class) that --algo and the checkpoints name."""
+    algo = algorithms[args.algo]
     explicit = options.explicit_options(args, algo)
     seed = explicit.get("seed", algo.Config.seed)
     out = Path(args.out) if args.out else default_out(args.task, algo, seed)
-    run = (resume if args.resume else start_fresh)(args, algo, explicit, out, argv)
+    run = (resume if args.resume else start_fresh)(args, algo, explicit, out, argv, algorithms)
     agent, cur, cfg = run.agent, run.cur, run.agent.cfg
     t0 = time.perf_counter()
     eval_s = 0.0  # time spent in periodic evaluations: not training time
@@ -517,7 +510,7 @@ def evaluate_and_advance(agent, args, cur, m: dict, first_success: dict | None) 
     the iteration's episodes. Returns (first_success, seconds spent evaluating), the latter not
     counted as training time. `agent` is anything with updates, global_step, act_deterministic and
     env_cfg (and, with a curriculum, ep_success and env): a trainer, or the SB3 baseline's view."""
-    from ..evaluate import evaluate
+    from ..envs.evaluate import evaluate
 
     eval_s = 0.0
     if args.eval_every and agent.updates % args.eval_every == 0:
@@ -547,7 +540,7 @@ def final_evaluation(agent, args, cur, out: Path, meta) -> str:
     """The end-of-run evaluation of `agent` over --eval-episodes episodes, written to eval.json after
     `meta()` (called once the evaluation is done) and the curriculum's final stage; returns the
     summary line's evaluation clause."""
-    from ..evaluate import evaluate
+    from ..envs.evaluate import evaluate
 
     result = evaluate(agent.act_deterministic, _eval_config(agent, cur), episodes=args.eval_episodes)
     info = meta()

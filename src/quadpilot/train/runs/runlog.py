@@ -1,7 +1,7 @@
 """The files of a training run other than checkpoints: metrics.csv, JSON files, the run
-directory's lock (curves.png, drawn from metrics.csv, is `train.plotting`'s). Every file of a run
+directory's lock (curves.png, drawn from metrics.csv, is `train.runs.plotting`'s). Every file of a run
 (checkpoints, replay chunks and snapshots too) is written whole or not at all by
-`console.atomic_write`.
+`atomic_files.atomic_write`.
 
 metrics.csv has a fixed header (`COLUMNS` for PPO; an algorithm names its own, `sac.COLUMNS`) and
 one row per iteration (a PPO update), appended, flushed and fsync'd as soon as the iteration ends, so
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 
 COLUMNS = (
     "global_step",

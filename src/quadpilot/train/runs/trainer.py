@@ -1,6 +1,6 @@
 """The trainer every algorithm is: what the run loop (`loop`) drives and what a checkpoint holds.
 
-An algorithm (PPO and its recurrent variant in `ppo` and `recurrent_ppo`, SAC in `sac`) is a
+An algorithm (PPO and its recurrent variant in `train.ppo`, SAC in `train.sac`) is a
 `Trainer` subclass. It builds its networks and optimisers in `__init__` (then `_start`), runs one
 iteration in `iterate` (one metrics.csv row: collect, then update) and names its own checkpoint
 entries in `own_state` / `load_own_state` / `own_optimizers`. The rest is here, once for every
@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from quadpilot.console import atomic_write
+from quadpilot.atomic_files import atomic_write
 from quadpilot.core.state import YAW
 
 from ..envs import EnvConfig
@@ -74,6 +74,8 @@ class Trainer:
     """What one iteration is called in messages (PPO: update; SAC: iteration)."""
     tag: str | None = None
     """Added to the run's labels and default directory (SAC: "sac"); None for our PPO."""
+    default_preset: str | None = None
+    """The --preset a fresh run takes without one (PPO: "fast"); None: the algorithm has no presets."""
     columns: tuple[str, ...] = ()
     """metrics.csv's header."""
     run_keys: tuple[str, ...] = ()
@@ -205,11 +207,11 @@ class Trainer:
             "env": {
                 **{name: tensor(getattr(batch, name)) for name in ENV_ARRAYS + HEADING_ARRAYS},
                 "target_radius": float(batch.target_radius),
-                "started": bool(self.env._started),
+                "started": bool(self.env.started),
                 **_randomization_state(batch),
             },
             "rng": {
-                "env": copy.deepcopy(self.env._rng.bit_generator.state),
+                "env": copy.deepcopy(self.env.rng.bit_generator.state),
                 "torch_gen": self.torch_gen.get_state(),
                 "torch_default": torch.get_rng_state(),
             },
@@ -275,7 +277,7 @@ class Trainer:
             else:
                 batch.heading[:] = batch.state[:, YAW]
             batch.target_radius = float(env["target_radius"])
-            self.env._started = bool(env["started"])
+            self.env.started = bool(env["started"])
             _load_randomization_state(batch, env, source)
             self._load_rng_state(ckpt["rng"], source)
         except (KeyError, TypeError, ValueError, RuntimeError, IndexError, AttributeError) as e:
@@ -290,7 +292,7 @@ class Trainer:
             raise CheckpointError(f"{source}: unknown numpy bit generator {kind!r}; expected one of {BIT_GENERATORS}")
         bitgen = getattr(np.random, kind)()
         bitgen.state = rng["env"]
-        self.env._rng = np.random.Generator(bitgen)
+        self.env.rng = np.random.Generator(bitgen)
         self.torch_gen.set_state(rng["torch_gen"])
         torch.set_rng_state(rng["torch_default"])
 
@@ -320,6 +322,35 @@ class Trainer:
     @classmethod
     def clean_stale_files(cls, directory: Path) -> None:
         """Remove temporary files of the algorithm's own that a kill interrupted."""
+
+    # --- what the run loop and the policy reader ask the algorithm -----------------------------
+    @classmethod
+    def preset_values(cls, preset: str | None) -> dict:
+        """A fresh run's configuration values before its flags (`options.make_config`): `preset`'s."""
+        return {}
+
+    @classmethod
+    def init_from(cls, path: str, explicit: dict, algorithms: dict) -> tuple[dict, dict]:
+        """quad-train --init-from PATH: the checked policy file (read with the registry `algorithms`)
+        and `explicit` with the file's network options. PPO's only (the CLI refuses it for the others)."""
+        raise NotImplementedError
+
+    def start_from(self, ckpt: dict, source: str) -> dict:
+        """Put --init-from's policy (`init_from`) into this fresh trainer; what config.json records."""
+        raise NotImplementedError
+
+    @classmethod
+    def policy_settings(cls, ckpt: dict) -> tuple[object, bool, int]:
+        """How a checked policy file's network reads observations (`checkpoint.TrainedPolicy`): its
+        configuration (None where `policy_network` reads it), whether observations are normalised,
+        the observation history's length."""
+        return None, False, 1
+
+    @classmethod
+    def policy_network(cls, ckpt: dict, obs_dim: int, cfg) -> tuple[torch.nn.Module, object]:
+        """The deterministic policy's network of a checked policy file (eval mode, its weights not
+        loaded yet) and its configuration; `cfg` is `policy_settings`'s."""
+        raise NotImplementedError
 
 
 def _randomization_state(batch) -> dict:

@@ -22,8 +22,10 @@ from pathlib import Path
 
 import torch
 
+from quadpilot.train.algorithms import load_checkpoint
 from quadpilot.train.envs import make_config
 from quadpilot.train.ppo import PPO, PPOConfig
+from quadpilot.train.ppo.checkpoint import ppo_from_checkpoint
 from quadpilot.train.runs import checkpoint as ck
 
 
@@ -42,7 +44,7 @@ def ppo_fixture(out: Path, cfg: PPOConfig, env_cfg) -> str:
     ppo.iterate()
     ck.save_for_resume(out, ppo, {"preset": "fast", "elapsed_s": 1.0, "first_success": None, "metrics": {}})
     ck.save_checkpoint(out / ck.POLICY, ppo, {"preset": "fast"})
-    again = ck.ppo_from_checkpoint(ck.load_checkpoint(out / ck.LATEST), source="fixture")
+    again = ppo_from_checkpoint(load_checkpoint(out / ck.LATEST), source="fixture")
     again.iterate()
     return digest(again.model.state_dict())
 

@@ -1,1 +1,0 @@
-"""The simulator side of software-in-the-loop: plant, sensors, ESC behaviour, MAVLink server."""

@@ -1,0 +1,7 @@
+"""`python -m quadpilot.sitl ...`: quad-sitl."""
+
+import sys
+
+from quadpilot.sitl.cli import main
+
+sys.exit(main())
