@@ -2,11 +2,11 @@
 
     # a run with PPOConfig fields changed through the library API (quad-train exposes only a few of
     # them as flags); writes metrics.csv (same columns as quad-train) and eval.json into --out
-    .venv/bin/python docs/walkthrough/diagnose.py run --out /tmp/walk-lr5e-2-1m --total-steps 1000000 --set lr=0.05
+    .venv/bin/python docs/walkthrough/diagnose.py run --out runs/walk-lr5e-2-1m --total-steps 1000000 --set lr=0.05
 
     # the figure: health columns of several metrics.csv files on shared axes, LABEL=PATH each
     .venv/bin/python docs/walkthrough/diagnose.py plot --out docs/walkthrough/diagnostics.png \
-        "defaults (healthy)=/tmp/walk-hover-1m/metrics.csv" "lr 5e-2 (broken)=/tmp/walk-lr5e-2-1m/metrics.csv"
+        "defaults (healthy)=runs/walk-hover-1m/metrics.csv" "lr 5e-2 (broken)=runs/walk-lr5e-2-1m/metrics.csv"
 
 The exact commands behind the figure and the tables are in docs/ppo_walkthrough.md, section 9.
 

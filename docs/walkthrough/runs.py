@@ -1,7 +1,7 @@
 """The runs behind docs/ppo_walkthrough.md section 9 as data: record a run directory's metrics.csv and
 eval.json into docs/walkthrough/runs.json, and print the section's tables from that file.
 
-    .venv/bin/python docs/walkthrough/runs.py record --out docs/walkthrough/runs.json reference=/tmp/walk-hover-1m
+    .venv/bin/python docs/walkthrough/runs.py record --out docs/walkthrough/runs.json reference=runs/walk-hover-1m
     .venv/bin/python docs/walkthrough/runs.py table docs/walkthrough/runs.json reference --updates 1,5,10 --eval
 
 `record` keeps, per run: the command that made it (config.json's; for a diagnose.py run its PPOConfig
