@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from quadpilot.core.frames import euler_to_rotmat, rotmat_to_euler
+from quadpilot.core.frames import euler_to_rotmat, rotation_entries, rotmat_to_euler
 from quadpilot.core.state import PITCH, POS, ROLL, VEL, YAW
 
 ATTITUDE_GAIN = 0.3
@@ -64,19 +64,6 @@ CALIBRATION_MAX_DT_S = 0.05
 """s: two states further apart than this teach nothing (a gap, a dropout)."""
 
 
-def _rotation_rows(roll: float, pitch: float, yaw: float) -> tuple:
-    """`core.frames.euler_to_rotmat` of one attitude as three row tuples, in scalar arithmetic (this
-    runs every step while states arrive, where NumPy's per-call cost on a 3×3 would double the node's)."""
-    sr, cr = math.sin(roll), math.cos(roll)
-    sp, cp = math.sin(pitch), math.cos(pitch)
-    sy, cy = math.sin(yaw), math.cos(yaw)
-    return (
-        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
-        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
-        (-sp, cp * sr, cp * cr),
-    )
-
-
 class ImuCalibration:
     """The gyro's and the accelerometer's biases (body FLU), learned from HIL_SENSOR against the states."""
 
@@ -97,7 +84,7 @@ class ImuCalibration:
 
     def update(self, state: list, time_usec: int, msg) -> None:
         """One step with both its state (12 floats, ENU/FLU) and its HIL_SENSOR."""
-        rot = _rotation_rows(state[ROLL], state[PITCH], state[YAW])
+        rot = rotation_entries(math.sin, math.cos, state[ROLL], state[PITCH], state[YAW])
         vx, vy, vz = state[VEL]
         prev, self._prev = self._prev, (int(time_usec), rot, vx, vy, vz)
         if prev is None:

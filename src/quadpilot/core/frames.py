@@ -14,9 +14,10 @@ import numpy as np
 def rotation_entries(sin, cos, roll, pitch, yaw) -> tuple[tuple, tuple, tuple]:
     """The body → world rotation R = Rz(ψ)·Ry(θ)·Rx(φ) as three rows of three entries, from roll,
     pitch and yaw as plain floats or arrays alike, with `sin` and `cos` to suit them (math's, NumPy's);
-    the entries are then floats or arrays. The one statement of the matrix: `euler_to_rotmat` and the
-    observations (`core.observation.observation_values`, `core.px4_raptor`) compute it here;
-    `euler_to_rotmat_rows` is the same operations in place."""
+    the entries are then floats or arrays. The one statement of the matrix: `euler_to_rotmat`, the
+    observations (`core.observation.observation_values`, `core.px4_raptor`), the simulator's sensors,
+    the node's estimate and `link.frames.ned_frd_quaternion` compute it here; `euler_to_rotmat_rows`
+    is the same operations in place."""
     sr, cr, sp, cp, sy, cy = sin(roll), cos(roll), sin(pitch), cos(pitch), sin(yaw), cos(yaw)
     return (
         (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),

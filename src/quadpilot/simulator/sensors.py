@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from quadpilot.core.frames import euler_to_rotmat
+from quadpilot.core.frames import euler_to_rotmat, rotation_entries
 from quadpilot.core.params import flu_layout
 from quadpilot.core.rotor_aero import rotor_aero_wrench
 from quadpilot.core.sensor_noise import ADIS16448, SensorNoise, SensorNoiseState
@@ -71,21 +71,13 @@ def isa_temperature_c(alt_msl_m: float) -> float:
 
 def rotation(state: np.ndarray) -> np.ndarray:
     """The body → world rotation (3, 3) of a 12-state: `core.frames.euler_to_rotmat` of its angles,
-    entry for entry in scalar arithmetic (the same bits, with `single_step.TRIG_AGREES`; else that
-    function itself), without NumPy's per-call overhead on one state: this runs every simulation step."""
+    as `core.frames.rotation_entries` on math's sin and cos (the same bits, with
+    `single_step.TRIG_AGREES`; else that function itself), without NumPy's per-call overhead on one
+    state: this runs every simulation step."""
     roll, pitch, yaw = float(state[ROLL]), float(state[PITCH]), float(state[YAW])
     if not (TRIG_AGREES and math.isfinite(roll) and math.isfinite(pitch) and math.isfinite(yaw)):
         return euler_to_rotmat(roll, pitch, yaw)
-    sr, cr = math.sin(roll), math.cos(roll)
-    sp, cp = math.sin(pitch), math.cos(pitch)
-    sy, cy = math.sin(yaw), math.cos(yaw)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
+    return np.array(rotation_entries(math.sin, math.cos, roll, pitch, yaw))
 
 
 def world_to_body(state: np.ndarray, v_world, rot: np.ndarray | None = None) -> np.ndarray:
