@@ -174,6 +174,33 @@ def test_every_skip_says_why():
     assert not bare, f"skip directives without a reason: {bare}"
 
 
+SKIP_KINDS = (
+    "setup",
+    "download",
+    "hardware",
+    "person",
+    "two processes",
+    "recursive",
+    "git history",
+    "placeholders",
+    "long",
+)
+
+
+def test_every_skip_reason_starts_with_its_kind():
+    """docs/testing.md's rule: a skip's reason starts with one of its kinds and a colon, so a reader
+    (and pytest's report) can tell a block that needs a person from one nobody shortened yet."""
+    off = [
+        f"{doc}:{ex.line}: {ex.parsed[1]}"
+        for doc in DOCS
+        for ex in _examples(doc)
+        if isinstance(ex.region.evaluator, type(SkipParser().skipper))
+        and ex.parsed[0] == "next"
+        and not (ex.parsed[1] or "").strip().strip("\"'").startswith(tuple(f"{k}:" for k in SKIP_KINDS))
+    ]
+    assert not off, "skip reasons that do not start with a kind of docs/testing.md:\n" + "\n".join(off)
+
+
 def test_a_renamed_flag_in_a_block_fails(tmp_path):
     """The check itself: README's quick-start export with a flag that does not exist fails."""
     doc = tmp_path / "doc.md"
