@@ -42,6 +42,15 @@ def to_body(rot, w) -> tuple:
     )
 
 
+def swap_frames_entries(rot) -> tuple[tuple, tuple, tuple]:
+    """E·R·F for rotation entries `rot` (rows of three): body FLU → ENU to body FRD → NED, and back
+    (E, world ENU ↔ NED, swaps x and y and negates z; F, body FLU ↔ FRD, negates y and z; both are
+    their own inverse). Rows 0 and 1 swapped, row 2 negated, then columns 1 and 2 negated: every
+    entry is one of R's, negated or not, so exactly R's bits."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rot
+    return (r10, -r11, -r12), (r00, -r01, -r02), (-r20, r21, r22)
+
+
 def euler_to_rotmat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Body → world rotation matrices, shape (..., 3, 3), from ZYX Euler angles of shape (...)."""
     rows = rotation_entries(np.sin, np.cos, roll, pitch, yaw)

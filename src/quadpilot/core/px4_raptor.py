@@ -45,7 +45,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .frames import rotation_entries
+from .frames import rotation_entries, swap_frames_entries
 from .observation import ObsField, ObsLayout, heading_turned
 
 MAX_POSITION_ERROR_M = 0.5
@@ -198,9 +198,7 @@ def observation_ned(
     the previous action. Turned into our frames and observed as `observation` observes
     (`observation_values`): world NED → ENU swaps x and y and negates z (E), body FRD → FLU negates y
     and z (F), the attitude R_ENU←FLU = E·R_NED←FRD·F, the setpoint yaw `heading_from_ned_yaw`."""
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = _qrot(tuple(float(v) for v in q_frd_ned))
-    # E·R·F: rows 0 and 1 swapped, row 2 negated, then columns 1 and 2 negated
-    rot = ((m10, -m11, -m12), (m00, -m01, -m02), (-m20, m21, m22))
+    rot = swap_frames_entries(_qrot(tuple(float(v) for v in q_frd_ned)))
 
     def enu(v, sp) -> tuple[float, float, float]:  # v − sp, NED → ENU
         return float(v[1]) - float(sp[1]), float(v[0]) - float(sp[0]), float(sp[2]) - float(v[2])

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quadpilot.core.frames import rotation_entries
+from quadpilot.core.frames import rotation_entries, swap_frames_entries
 
 EARTH_RADIUS_M = 6_371_008.8  # WGS-84 mean radius (IUGG), m
 LAT_QUANTUM_DEG = 1e-7
@@ -138,12 +138,8 @@ def ned_frd_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, fl
     """Body FRD → NED quaternion (w ≥ 0) of ENU/FLU ZYX Euler angles, in scalar arithmetic (this runs
     every simulation step). The same rotation as `rotmat_to_quaternion(rotmat_enu_flu_to_ned_frd(
     euler_to_rotmat(roll, pitch, yaw)))`, which the tests check it against."""
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rotation_entries(math.sin, math.cos, roll, pitch, yaw)
-    # M = E·R·F: rows 0 and 1 swapped, row 2 negated (E), columns 1 and 2 negated (F); a negation is
-    # exact, so these are R's bits
-    m00, m01, m02 = r10, -r11, -r12
-    m10, m11, m12 = r00, -r01, -r02
-    m20, m21, m22 = -r20, r21, r22
+    rot = swap_frames_entries(rotation_entries(math.sin, math.cos, roll, pitch, yaw))  # M = E·R·F
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rot
     tr = m00 + m11 + m22  # Shepperd's method, as rotmat_to_quaternion
     if tr > 0.0:
         t = math.sqrt(tr + 1.0) * 2.0
