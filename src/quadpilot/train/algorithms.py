@@ -42,7 +42,7 @@ def load_policy(path: str | os.PathLike) -> checkpoint.TrainedPolicy:
 
 def trained_policy(ckpt: dict, source: str = "checkpoint") -> checkpoint.TrainedPolicy:
     """The deterministic policy of a loaded, checked checkpoint (`load_checkpoint`)."""
-    return checkpoint.TrainedPolicy(ckpt, ALGORITHMS[ckpt.get("algo", "ppo")], source)
+    return checkpoint.TrainedPolicy(ckpt, checkpoint_read.algorithm_of(ckpt, ALGORITHMS), source)
 
 
 def load_trainer(path: str | os.PathLike) -> Trainer:

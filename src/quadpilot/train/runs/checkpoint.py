@@ -38,7 +38,7 @@ from quadpilot.atomic_files import atomic_write
 from ..envs import EnvConfig
 from ..envs.history import history_dim
 from ..networks.actor import DeterministicActor
-from .checkpoint_read import load_checkpoint
+from .checkpoint_read import algorithm_of, load_checkpoint
 from .checks import (
     MAX_BATCH,
     MAX_ENVS,
@@ -70,7 +70,7 @@ def trainer_from_checkpoint(
 ) -> Trainer:
     """The trainer of the checkpoint's algorithm (found in the registry `algorithms`), rebuilt and
     ready to continue (`Trainer.from_checkpoint`)."""
-    return algorithms[ckpt.get("algo", "ppo")].from_checkpoint(ckpt, cfg, source, directory)
+    return algorithm_of(ckpt, algorithms).from_checkpoint(ckpt, cfg, source, directory)
 
 
 def load_trainer(path: str | os.PathLike, algorithms: dict) -> Trainer:
@@ -159,7 +159,7 @@ class TrainedPolicy:
         from quadpilot.core.observation import get_layout
 
         self.source = source
-        self.algo = ckpt.get("algo", "ppo")
+        self.algo = algorithm.algo
         try:  # `load_checkpoint` checked the entries; this builds them and checks that they fit
             # the algorithm's `policy_settings` (PPO: its ppo_config; SAC: raw observations, no history)
             self.config, self.normalize_obs, self.obs_history = algorithm.policy_settings(ckpt)
@@ -231,4 +231,4 @@ def load_policy(path: str | os.PathLike, algorithms: dict) -> TrainedPolicy:
     """The deterministic policy in a checkpoint (policy.pt) of one of `algorithms` (the registry);
     CheckpointError if it cannot be used."""
     ckpt = load_checkpoint(path, algorithms)
-    return TrainedPolicy(ckpt, algorithms[ckpt.get("algo", "ppo")], source=str(path))
+    return TrainedPolicy(ckpt, algorithm_of(ckpt, algorithms), source=str(path))

@@ -33,6 +33,15 @@ REQUIRED = (
 """The entries of every checkpoint, with the algorithm's configuration and `Trainer.required`."""
 
 
+DEFAULT_ALGO = "ppo"
+"""The algorithm of a checkpoint without an "algo" entry (written before SAC existed)."""
+
+
+def algorithm_of(ckpt: dict, algorithms: dict):
+    """The trainer class, in the registry `algorithms`, of a checkpoint `load_checkpoint` checked."""
+    return algorithms[ckpt.get("algo", DEFAULT_ALGO)]
+
+
 def load_checkpoint(path: str | os.PathLike, algorithms: dict) -> dict:
     """Read and check a checkpoint of one of `algorithms` (the registry) with
     `torch.load(weights_only=True)` (no code in the file runs).
@@ -58,12 +67,12 @@ def load_checkpoint(path: str | os.PathLike, algorithms: dict) -> dict:
         raise CheckpointError(f"{path}: holds a {type(ckpt).__name__} without a 'schema' key; expected {expected}")
     if not isinstance(ckpt["schema"], str) or ckpt["schema"] != SCHEMA:
         raise CheckpointError(f"{path}: schema {short(ckpt['schema'])}; this version of quadpilot reads {SCHEMA!r}")
-    algo = ckpt.get("algo", "ppo")
+    algo = ckpt.get("algo", DEFAULT_ALGO)
     if not isinstance(algo, str) or algo not in algorithms:
         raise CheckpointError(
             f"{path}: trained by {short(algo)}; this version of quadpilot reads {' and '.join(algorithms)} checkpoints"
         )
-    cls = algorithms[algo]
+    cls = algorithm_of(ckpt, algorithms)
     missing = [k for k in (*REQUIRED, cls.config_key(), *cls.required) if k not in ckpt]
     if missing:
         raise CheckpointError(f"{path}: schema {SCHEMA!r} but missing {missing}; the file is damaged")

@@ -34,6 +34,7 @@ from quadpilot.console import UsageError
 
 from . import options
 from .checkpoint import POLICY, has_checkpoint, load_for_resume, save_checkpoint, save_snapshot
+from .checkpoint_read import algorithm_of
 from .runlog import (
     MetricsLog,
     check_run_dir_free,
@@ -347,7 +348,7 @@ def start_fresh(args, algo, explicit: dict, out: Path, argv: list[str], algorith
 def resume(args, algo, explicit: dict, out: Path, argv: list[str], algorithms: dict) -> Run:
     _check_resume_dir(out)
     ckpt, used, warning = load_for_resume(out, algorithms)  # CheckpointError: a bad file, exit 1 (cli.main)
-    stored_algo = ckpt.get("algo", "ppo")
+    stored_algo = algorithm_of(ckpt, algorithms).algo
     if stored_algo != algo.algo:
         raise UsageError(f"{out} holds a {stored_algo} run; resume it with --algo {stored_algo}")
     if warning:
