@@ -30,7 +30,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from quadpilot.console import Parser, UsageError
+from quadpilot.console import Parser, UsageError, os_error_line
 
 PARITY_TOLERANCE = 1e-5  # max abs difference in thrust command u², a fraction of full thrust (onnx_export.check_parity)
 MAX_PARITY_SAMPLES = 1_000_000  # ~70 MB of observations; the default 10 000 takes seconds
@@ -295,7 +295,7 @@ def _failure(e: Exception) -> str | None:
     if isinstance(e, (CheckpointError, ModelContractError, StudentCheckpointError, PolicyTarError, RetargetError)):
         return str(e)
     if isinstance(e, OSError):
-        return f"{e.filename + ': ' if e.filename else ''}{e.strerror or e}"
+        return os_error_line(e)
     if isinstance(e, RuntimeError) and "operator set" in str(e):  # export_onnx's opset check
         return str(e)
     return None

@@ -35,7 +35,7 @@ class Flown:
 
 
 def _os_error(e: OSError) -> int:
-    print(f"quad-sitl: error: {e.filename + ': ' if e.filename else ''}{e.strerror or e}", file=sys.stderr)
+    print(f"quad-sitl: error: {os_error_line(e)}", file=sys.stderr)
     return 1
 
 
