@@ -96,6 +96,19 @@ def module_files(root: Path) -> dict[str, Path]:
     return modules
 
 
+def from_import_module(node: ast.ImportFrom, package: list[str], top: str = "quadpilot") -> list[str] | None:
+    """The module a `from … import` statement reads from, as its parts below the package `top`
+    ("quadpilot", or "quadpilot.train" for a sub-package): a relative import resolved against
+    `package`, the importing module's package as parts below `top`. None for a module outside `top`."""
+    if node.level:
+        if node.level - 1 > len(package):
+            return None  # above `top`
+        return [*package[: len(package) - node.level + 1], *(node.module.split(".") if node.module else [])]
+    if node.module == top or (node.module or "").startswith(f"{top}."):
+        return node.module.split(".")[len(top.split(".")) :]
+    return None
+
+
 def test_no_import_circle_between_the_modules_of_the_package():
     """Module-level graph over every module of src/quadpilot (imports inside functions included):
     a circle anywhere, within a package or across packages, fails."""
@@ -106,12 +119,7 @@ def test_no_import_circle_between_the_modules_of_the_package():
         out = set()
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.ImportFrom):
-                if node.level:
-                    base = package[: len(package) - node.level + 1]
-                    mod = [*base, *(node.module.split(".") if node.module else [])]
-                elif (node.module or "").startswith("quadpilot."):
-                    mod = node.module.split(".")[1:]
-                else:
+                if (mod := from_import_module(node, package)) is None:
                     continue
                 for a in node.names:  # `from .pkg import module` names a module, else the module itself
                     full = ".".join([*mod, a.name])
@@ -297,13 +305,9 @@ def private_names_used_across_modules(root: Path) -> list[str]:
                     if a.asname and (mod := a.name.removeprefix(f"{top}.")) in modules:
                         aliases[a.asname] = mod
             elif isinstance(node, ast.ImportFrom):
-                if node.level:  # relative: against the module's package
-                    base, rest = package[: len(package) - node.level + 1], (node.module or "").split(".")
-                elif node.module == top or (node.module or "").startswith(f"{top}."):
-                    base, rest = [], node.module.split(".")[1:]
-                else:
+                if (parts := from_import_module(node, package, top)) is None:
                     continue
-                mod = ".".join(p for p in [*base, *rest] if p)
+                mod = ".".join(parts)
                 for a in node.names:
                     full = f"{mod}.{a.name}".lstrip(".")
                     if full in modules:
@@ -384,13 +388,10 @@ def train_imports(train: Path) -> list[tuple[str, str, str]]:
         part = rel.parts[0].removesuffix(".py")
         package = list(rel.parts[:-1])  # the importing file's package, as folders under train
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.ImportFrom) and node.level:
-                if node.level - 1 > len(package):
-                    continue  # above train: another of our packages
-                mod = [*package[: len(package) - node.level + 1], *(node.module.split(".") if node.module else [])]
+            if isinstance(node, ast.ImportFrom):
+                if (mod := from_import_module(node, package, f"quadpilot.{train.name}")) is None:
+                    continue  # another of our packages, or not ours
                 names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith(f"quadpilot.{train.name}"):
-                mod, names = node.module.split(".")[2:], [a.name for a in node.names]
             elif isinstance(node, ast.Import):
                 mods = [a.name.split(".")[2:] for a in node.names if a.name.startswith(f"quadpilot.{train.name}.")]
                 found += [(f"{rel}:{node.lineno}", part, m[0]) for m in mods]
