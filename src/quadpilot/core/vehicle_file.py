@@ -3,7 +3,8 @@
 The shipped presets are files of this package (`quadpilot/vehicles/<name>.toml`), and a user's file
 works the same way. The schema takes the numbers as RotorPy's and PX4's parameter sets give them:
 
-    name = "px4_sih_quadx"     # letters, digits, "_", ".", "+", "-" (it names the vehicle in messages and metadata)
+    name = "px4_sih_quadx"     # NAME_RULE: letters, digits, "_", ".", "+", "-", a letter or digit first (it names
+                               # the vehicle in messages and metadata)
     mass = 1.0                 # kg
     ixx = 0.025                # kg m^2, principal inertias (diagonal inertia tensor)
     iyy = 0.025
