@@ -58,19 +58,27 @@ def _lost(r: dict) -> str:
     return f"{lost / frames:.1%} of {frames:,}" if frames else "0"
 
 
+def _models(rows: list[dict]) -> list[str]:
+    """The models the rows fly, in the order they first appear (rows made before --models: hover)."""
+    return list(dict.fromkeys(r.get("model", "hover") for r in rows))
+
+
 def table(rows: list[dict], kind: str) -> list[str]:
     head = "impairment (`--link-impair`)" if kind == "link" else "sensor fault (`--sensor-fault`)"
     lost = " frames lost |" if kind == "link" else ""
+    several = len(_models(rows)) > 1
     out = [
-        f"| {head} | Hz | hover success | crashed | error last 2 s, mean / worst (cm) |{lost} what the node did |",
-        "|---|---|---|---|---|" + ("---|" if kind == "link" else "") + "---|",
+        ("| policy " if several else "")
+        + f"| {head} | Hz | hover success | crashed | error last 2 s, mean / worst (cm) |{lost} what the node did |",
+        ("|---" if several else "") + "|---|---|---|---|---|" + ("---|" if kind == "link" else "") + "---|",
     ]
     for r in rows:
         if r["kind"] != kind:
             continue
         spec = f"`{r['spec']}`" if r["spec"] else "none"
         name = spec if r["condition"] == "none" else f"{r['condition']}: {spec}"
-        cells = [name, str(r["rate_hz"]), _success(r), str(r.get("crashes", "–"))]
+        cells = ([f"`{r.get('model', 'hover')}`"] if several else []) + [name, str(r["rate_hz"]), _success(r)]
+        cells.append(str(r.get("crashes", "–")))
         cells.append(f"{_cm(r.get('mean_error_last_2s_m'))} / {_cm(r.get('max_error_last_2s_m'))}")
         if kind == "link":
             cells.append(_lost(r))
@@ -81,19 +89,33 @@ def table(rows: list[dict], kind: str) -> list[str]:
 
 def targets(doc: dict) -> list[str]:
     out = ["| target | figure | met? |", "|---|---|---|"]
+    rows = _sorted(doc["rows"])
+    who = (lambda r: f"`{r.get('model', 'hover')}`, ") if len(_models(rows)) > 1 else (lambda r: "")
     for name, goal in doc["goals"].items():
-        for r in (r for r in doc["rows"] if r["condition"] == name):
+        for r in (r for r in rows if r["condition"] == name):
             rate = r.get("success_rate")
             met = rate is not None and rate >= goal
             flown = "–" if rate is None else f"{rate:.0%} ({_success(r)})"
             verdict = "yes" if met else "no"
-            out.append(f"| ≥ {goal:.0%} hover success, {name}, {r['rate_hz']} Hz | {flown} | {verdict} |")
+            out.append(f"| {who(r)}≥ {goal:.0%} hover success, {name}, {r['rate_hz']} Hz | {flown} | {verdict} |")
+    for name in doc.get("no_crash", ()):
+        for r in (r for r in rows if r["condition"] == name):
+            crashes = r.get("crashes")
+            flown = "–" if crashes is None else f"{crashes} of {r['episodes']} episodes crashed"
+            verdict = "yes" if crashes == 0 else "no"
+            out.append(f"| {who(r)}no crash, {name}, {r['rate_hz']} Hz | {flown} | {verdict} |")
     crashes = doc["process_crashes"]
     out.append(
         f"| the node never crashes (exit 0, or 1 after a failsafe; no traceback) | {crashes} of {len(doc['rows'])} "
         f"runs failed | {'yes' if crashes == 0 else 'no'} |"
     )
     return out
+
+
+def _sorted(rows: list[dict]) -> list[dict]:
+    """By model (in the order flown), kind and rate; within those, the order flown."""
+    order = {m: i for i, m in enumerate(_models(rows))}
+    return sorted(rows, key=lambda r: (order[r.get("model", "hover")], r["kind"], r["rate_hz"]))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -106,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, json.JSONDecodeError) as e:
         print(f"report_link_faults: cannot read {args.json}: {e}", file=sys.stderr)
         return 2
-    rows = sorted(doc["rows"], key=lambda r: (r["kind"], r["rate_hz"]))
+    rows = _sorted(doc["rows"])
     parts = {
         "link": table(rows, "link"),
         "faults": table(rows, "fault"),

@@ -374,6 +374,12 @@ ALLOWED: tuple[tuple[str, str], ...] = (
         "STM32F4's clock",
     ),
     (r"\bup\s+to\s+500\s+µs", "the lockstep spin window (link.spin.LOCKSTEP_SPIN_S, --spin-us)"),
+    (
+        r"\b0[–-]50\s?ms|±\s?10\s?ms|\b20\s?ms\s+each\s+way|\bup\s+to\s+60\s?ms",
+        "quad-train's default timing (core.timing preset link: delays of 0-50 ms each way, ±10 ms of jitter, "
+        "so up to 60 ms) and the fixed link a policy trained through it is judged at (20 ms each way, "
+        "train.runs.loop.JUDGED_TIMINGS)",
+    ),
     (r"\b95\s+%", "the success bar: 95 % of 100 evaluation episodes (train.runs.loop.SUCCESS_BAR)"),
     (
         r"last\s+2\s+s|\b5\s+s\s+episode|episodes\s+of\s+5\s+s|\b5\s+cm\b(?!/)",

@@ -1,9 +1,9 @@
-"""The shipped models are reproducible: the smallest one is retrained from the command recorded in its
+"""The shipped models are reproducible: the quickest one is retrained from the command recorded in its
 own directory (`config.json`'s "command", whose `--out` alone is replaced by a temporary directory)
 and must give the same policy file, every tensor equal bit for bit.
 
-Nothing here names a model or holds weights: the model is the shipped PPO run with the fewest
-training steps, and its command, seed and thread count are whatever its directory recorded, so the
+Nothing here names a model or holds weights: the model is the shipped PPO run that trained
+fastest, and its command, seed and thread count are whatever its directory recorded, so the
 test stays valid when the models are retrained. What the recorded command must contain is checked
 first (`recorded_command`), and the retrained run's configuration must equal the recorded one, so
 a default that moved since the model was trained is reported as such rather than as a weight
@@ -46,11 +46,14 @@ def shipped_ppo_models() -> list[Path]:
 
 
 def smallest_model() -> Path:
-    """The shipped PPO model with the fewest training steps (then the smallest batch, then the name)."""
+    """The shipped PPO model that trained fastest (its eval.json's train_time_s; then the fewest
+    training steps, the smallest batch, the name): steps alone would pick a recurrent model, whose
+    steps cost several times an MLP's."""
 
     def cost(d: Path):
         ppo = json.loads((d / "config.json").read_text())["ppo"]
-        return (ppo["total_steps"], ppo["num_envs"] * ppo["rollout_steps"], d.name)
+        seconds = json.loads((d / "eval.json").read_text()).get("train_time_s")
+        return (seconds if isinstance(seconds, (int, float)) else math.inf, ppo["total_steps"], d.name)
 
     models = shipped_ppo_models()
     assert models, f"no shipped PPO model with config.json and policy.pt under {MODELS}"

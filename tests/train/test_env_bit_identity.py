@@ -61,6 +61,14 @@ ASYMMETRIC = dataclasses.replace(
 # waypoint's reward as it was when the digests were pinned (its heading Gaussian was narrowed since:
 # a change of what is paid, not of how the environment computes it)
 WAYPOINT_REWARD_BEFORE = {"tilt_weight": 50.0, "heading_sigma": 0.5}
+# hover's likewise (narrowed to 0.25 as waypoint's, for training through delay)
+HOVER_REWARD_BEFORE = {"heading_sigma": 0.5}
+
+
+def _as_pinned(kw: dict) -> dict:
+    """make_config keywords with the reward the digests were pinned with."""
+    return {"reward": HOVER_REWARD_BEFORE, **kw} if kw.get("task") == "hover" else kw
+
 
 # name: (num_envs, steps, action kind, make_config keywords)
 #   action kinds: "wild" uniform in [−1.2, 1.2] (clipped: crashes, frequent resets), "calm" normal
@@ -203,7 +211,7 @@ def _batch_state(d: Digest, batch) -> None:
 
 def vector_digest(name: str) -> str:
     n, steps, kind, kw = CASES[name]
-    env = QuadVectorEnv(n, **kw)
+    env = QuadVectorEnv(n, **_as_pinned(kw))
     d = Digest()
     obs, info = env.reset(seed=7)
     d.add("reset", {"obs": obs, "info": info})
@@ -244,7 +252,8 @@ def evaluate_digest() -> str:
         ("circle", lambda obs: np.tanh(obs @ w[: obs.shape[1]])),
         ("waypoint", lambda obs: np.tanh(obs @ w[: obs.shape[1]])),
     ):
-        reward = {"reward": WAYPOINT_REWARD_BEFORE} if task == "waypoint" else {}
+        reward = {"reward": WAYPOINT_REWARD_BEFORE} if task == "waypoint" else _as_pinned({"task": task})
+        reward.pop("task", None)
         cfg = make_config(task, sensor_noise="seed" if task == "circle" else None, **reward)
         d.add(task, evaluate(policy, cfg, episodes=9, seed=4))
     return d.hexdigest()

@@ -244,8 +244,12 @@ def test_quad_train_algo_sb3_writes_our_run_files_and_is_judged_by_our_evaluator
     ev = json.loads((out / "eval.json").read_text())
     assert ev["algo"] == "sb3" and ev["episodes"] == 8 and ev["global_step"] == 3072
     assert "first_success" in ev and set(ev["time_breakdown_s"]) >= {"env_s", "inference_s", "update_s"}
-    # our evaluator judged it (periodic evaluations and the final one), on the training environment
-    assert len(calls) == len(rows) + 1 and all(json.loads(json.dumps(c[1].to_json())) == config["env"] for c in calls)
+    # our evaluator judged it (periodic evaluations and the final one), on the training environment, and
+    # then, trained through quad-train's default timing, without delay and at a fixed 20 ms ± 10 ms
+    trained = calls[: len(rows) + 1]
+    assert all(json.loads(json.dumps(c[1].to_json())) == config["env"] for c in trained)
+    assert [c[1].timing and c[1].timing.name for c in calls[len(rows) + 1 :]] == [None, "20ms±10"]
+    assert set(ev["timings"]) == {"no_delay", "delay_20ms_jitter_10ms"}
     # the saved files give back the same policy: the same evaluation
     again = _json_safe(real(sb.load_policy(out), EnvConfig.from_json(config["env"]), episodes=8))
     assert again == {k: ev[k] for k in again}

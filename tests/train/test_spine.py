@@ -122,7 +122,7 @@ RUNS = {
 @pytest.mark.parametrize("kind", sorted(RUNS))
 def test_two_iterations_give_the_weights_they_gave_before_the_spine(tmp_path, kind):
     argv, want = RUNS[kind]
-    assert main([*argv, *TINY, "--obs-version", "1", "--out", str(tmp_path / "run")]) == 0
+    assert main([*argv, *TINY, "--obs-version", "1", "--timing", "none", "--out", str(tmp_path / "run")]) == 0
     ckpt = load_checkpoint(tmp_path / "run" / "policy.pt")
     assert ckpt["updates"] == 2
     pinned(digest(ckpt["model"]), want)
@@ -153,7 +153,7 @@ def numpy_here() -> dict:
 
 
 def test_two_iterations_on_the_numpy_update_give_the_weights_pinned_for_it(tmp_path):
-    assert main([*NUMPY_RUN, *TINY, "--obs-version", "1", "--out", str(tmp_path / "run")]) == 0
+    assert main([*NUMPY_RUN, *TINY, "--obs-version", "1", "--timing", "none", "--out", str(tmp_path / "run")]) == 0
     ckpt = load_checkpoint(tmp_path / "run" / "policy.pt")
     assert ckpt["updates"] == 2
     here, core = numpy_here(), blas_core()
@@ -216,9 +216,9 @@ def print_pins() -> None:
             nets = (agent.actor, agent.critic, agent.critic_target) if kind == "sac" else (agent.model,)
             print(f"expected.json weights_sha256 {kind}: {digest(*(n.state_dict() for n in nets))}")
         for kind, (argv, _) in sorted(RUNS.items()):
-            main([*argv, *TINY, "--obs-version", "1", "--out", str(out / f"run_{kind}")])
+            main([*argv, *TINY, "--obs-version", "1", "--timing", "none", "--out", str(out / f"run_{kind}")])
             print(f"RUNS {kind}: {digest(load_checkpoint(out / f'run_{kind}' / 'policy.pt')['model'])}")
-        main([*NUMPY_RUN, *TINY, "--obs-version", "1", "--out", str(out / "run_numpy")])
+        main([*NUMPY_RUN, *TINY, "--obs-version", "1", "--timing", "none", "--out", str(out / "run_numpy")])
         model = load_checkpoint(out / "run_numpy" / "policy.pt")["model"]
         print(f"NUMPY_PINNED {blas_core()}: {digest(model)}")
     print(f"made_with: {HERE}; numpy update: {numpy_here()}")

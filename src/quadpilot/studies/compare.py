@@ -133,6 +133,10 @@ def plan(args) -> list[RunSpec]:
             argv += ["--threads", str(args.threads), "--eval-every", str(args.eval_every), "--out", str(d)]
             if args.total_steps is not None:
                 argv += ["--total-steps", str(args.total_steps)]
+            if args.timing is not None:
+                argv += ["--timing", args.timing]
+            for item in args.reward or ():
+                argv += ["--reward", item]
             specs.append(RunSpec(algo, seed, str(d), str(out / f"{algo}-seed{seed}.log"), tuple(argv), args.threads))
     return specs
 
@@ -229,6 +233,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--algos", type=_parse_list(str, ALGOS), default=list(ALGOS), metavar="A,…", help="Default: ppo,sb3."
     )
     r.add_argument("--total-steps", type=int, metavar="N", help="Step budget of every run. Default: the preset's.")
+    r.add_argument(
+        "--timing",
+        choices=("link", "none"),  # core.timing.PRESETS (not imported: --help stays light)
+        help="quad-train's --timing for every run (the same for both algorithms). Default: quad-train's (link).",
+    )
+    r.add_argument(
+        "--reward",
+        action="append",
+        metavar="NAME=VALUE",
+        help="quad-train's --reward for every run; repeatable. Default: the task's reward.",
+    )
     r.add_argument(
         "--eval-every",
         type=int,

@@ -294,6 +294,31 @@ def _add_sensor_options(p: argparse.ArgumentParser) -> None:
         "Default: the preset's.",
     )
     p.add_argument(
+        "--reward",
+        action="append",
+        metavar="NAME=VALUE",
+        help="Set a weight or limit of the reward: a field of quadpilot.core.reward.RewardConfig, e.g. "
+        "heading_sigma=0.5; repeatable; on top of the task's own reward. Default: the task's.",
+    )
+    p.add_argument(
+        "--timing",
+        metavar="PRESET",
+        help="The loop's timing in training (quadpilot.core.timing): per episode an action delay, an observation "
+        "delay and a jitter are drawn per drone and applied at the control rate. link: delays of 0-30 ms each way "
+        "and up to ±10 ms of jitter, what a radio link, an estimator and an ESC add; none: the state of now and a "
+        "command that acts now. --action-delay, --obs-delay and --jitter change one range. Default: link.",
+    )
+    for flag, what in (
+        ("--action-delay", "from the policy's output to the rotors"),
+        ("--obs-delay", "age of the state the policy sees"),
+        ("--jitter", "per-step spread of both delays, ±"),
+    ):
+        p.add_argument(
+            flag,
+            metavar="MS[:MS]",
+            help=f"Milliseconds {what}: one value, or a range drawn per episode (e.g. 0:30); overrides --timing's.",
+        )
+    p.add_argument(
         "--init-rotor",
         choices=("hover", "rest", "random"),  # train.envs.INIT_ROTOR (not imported: --help stays torch-free)
         help="Rotor speeds at the start of an episode: hover (at the hover command), rest (stopped, as a "

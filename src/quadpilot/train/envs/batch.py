@@ -22,6 +22,7 @@ from quadpilot.core.reward import StepTerms, circle_errors
 from quadpilot.core.sensor_noise import SensorNoiseState
 from quadpilot.core.start import sample_ball, sample_start_states
 from quadpilot.core.state import STATE_DIM, YAW
+from quadpilot.core.timing import DelayLine
 
 try:  # the ufunc np.clip calls, without np.clip's dispatch (a microsecond a call); the same values
     from numpy._core.umath import clip as _clip
@@ -130,6 +131,9 @@ class QuadBatch:
         self.randomizer = (
             Randomizer(cfg.randomization, self.nominal, n, cfg.dt, self.dtype) if cfg.randomization else None
         )
+        # the loop's timing: commands and states delayed per drone (None: none, as before it existed)
+        timing = cfg.timing if cfg.timing is not None and cfg.timing.active else None
+        self.delay = DelayLine(timing, n, m, STATE_DIM, cfg.dt, self.dtype) if timing is not None else None
         if self.randomizer is not None and cfg.randomization.airframes:
             # a drawn airframe per drone: the motor map uses the hover command of each drone's own
             # vehicle file, (N,) against the commands' (M, N) rows, kept up to date by the randomizer
@@ -272,6 +276,8 @@ class QuadBatch:
             else:
                 self.noise.rng = np.random.default_rng(seed)
             self.noise.reset(idx)
+        if self.delay is not None:  # drawn last, so that the draws above are what they were without it
+            self.delay.reset(idx, rng, self._rotor.rows[:, idx], self._state.rows[:, idx])
         if not observe:  # the caller builds every observation, and with them the trigonometry
             self._trig_valid = False
             return
@@ -311,11 +317,12 @@ class QuadBatch:
         for this step to the randomisation's external force and moment."""
         self._advance(action, commands, force, torque)
         circle = self.cfg.task == "circle"
-        s = self._state.rows
+        s = self._seen_rows()
         sensed = s if self.noise is None else self.noise.estimate_rows(s, self._estimate_rows(self.n))
         self._observe(sensed, self._target.rows, self.obs, self.target_vel if circle else None, self.obs_heading)
-        # without noise the observation's position error is the true one
-        t, truncated = self._finish(self._observer.last.vec if self.noise is None else None, norms=True)
+        # without noise or delay the observation's position error is the true one
+        exact = self.noise is None and self.delay is None
+        t, truncated = self._finish(self._observer.last.vec if exact else None, norms=True)
         return self.obs, t.reward, t.crash, truncated, t.err
 
     def _observe(self, sensed, target_rows, out, target_vel, heading) -> None:
@@ -325,7 +332,13 @@ class QuadBatch:
         ob = self._observer
         ob.build(sensed, None, out, target_vel, heading=heading, target_rows=target_rows)
         self._trig = ob.last.trig(self.n)
-        self._trig_valid = self.noise is None
+        self._trig_valid = self.noise is None and self.delay is None  # the state the next step starts from
+
+    def _seen_rows(self) -> np.ndarray:
+        """The state rows the observation is built from: the state now, or without delay the state
+        as old as each drone's observation delay (`core.timing.DelayLine.observed`)."""
+        s = self._state.rows
+        return s if self.delay is None else self.delay.observed(s)
 
     def _ext_rows(self, k: int) -> np.ndarray:
         return self._ext_views(k)[0]
@@ -363,7 +376,9 @@ class QuadBatch:
         n, c = self.n, self.cfg
         circle, head = c.task == "circle", self.obs_heading is not None
         s = self._state.rows
+        seen = self._seen_rows()
         if not np.count_nonzero(done):  # (done.any(), at half the cost)
+            s = seen
             sensed = s if self.noise is None else self.noise.estimate_rows(s, self._estimate_rows(n))
             self._observe(sensed, self._target.rows, self.obs, self.target_vel if circle else None, self.obs_heading)
             return t.reward, t.crash, truncated, None, None
@@ -374,7 +389,7 @@ class QuadBatch:
         k = idx.size
         # columns n .. n + k − 1: the ended drones as they ended (state, estimate, target, heading)
         ext, est, target = self._ext_views(n + k)
-        ext[:, n:] = s[:, idx]
+        ext[:, n:] = seen[:, idx]
         if self.noise is not None:
             est[:, n:] = self.noise.estimate(ext[:, n:].T, idx).T
         target_vel, heading = self._ext_target_vel, self._ext_heading
@@ -390,11 +405,13 @@ class QuadBatch:
             np.copyto(target_vel[:n], self.target_vel)
         if head:
             np.copyto(heading[:n], self.heading)
-        np.copyto(ext[:, :n], s)
+        if seen is not s:  # the drones just reset are seen at their start
+            seen[:, idx] = s[:, idx]
+        np.copyto(ext[:, :n], seen)
         if self.noise is None:
             sensed = ext
         else:
-            self.noise.estimate_rows(s, est[:, :n])
+            self.noise.estimate_rows(seen, est[:, :n])
             sensed = est
         last = np.empty((k, self.obs.shape[1]), np.float32)
         self._observe(
@@ -426,6 +443,8 @@ class QuadBatch:
             np.multiply(self.u_hover, u, u)
         # the last clip to [0, 1] is the Stepper's to [u_min, 1]: clip(clip(x, 0, 1), u_min, 1) is
         # clip(x, u_min, 1) for 0 ≤ u_min < 1, the same bits
+        if self.delay is not None:  # what reaches the rotors: the commands sent earlier
+            np.copyto(u, self.delay.command(u))
         if self.randomizer is not None:
             f, t = self.randomizer.external(self.steps)
             force, torque = _plus(f, force), _plus(t, torque)

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from quadpilot.console import UsageError
+from quadpilot.core.timing import TimingConfig
 
 from . import options
 from .checkpoint import POLICY, has_checkpoint, load_for_resume, save_checkpoint, save_snapshot
@@ -537,18 +538,37 @@ def evaluate_and_advance(agent, args, cur, m: dict, first_success: dict | None) 
     return first_success, eval_s
 
 
+JUDGED_TIMINGS = {"no_delay": None, "delay_20ms_jitter_10ms": TimingConfig.fixed(20.0, 10.0)}
+"""Besides the timing it trained with, what a run trained through delay is judged at (eval.json
+"timings"): none, and quad-sitl --link-impair delay=20ms,jitter=10ms."""
+
+
 def final_evaluation(agent, args, cur, out: Path, meta) -> str:
     """The end-of-run evaluation of `agent` over --eval-episodes episodes, written to eval.json after
     `meta()` (called once the evaluation is done) and the curriculum's final stage; returns the
     summary line's evaluation clause."""
     from ..envs.evaluate import evaluate
 
-    result = evaluate(agent.act_deterministic, _eval_config(agent, cur), episodes=args.eval_episodes)
+    cfg = _eval_config(agent, cur)
+    result = evaluate(agent.act_deterministic, cfg, episodes=args.eval_episodes)
+    line = f"; evaluation: success {result['success_rate']:.0%} over {args.eval_episodes} episodes"
+    if cfg.timing is not None and cfg.timing.active:  # trained through delay: judged without it and at a fixed link
+        result["timings"] = {
+            name: evaluate(
+                agent.act_deterministic, dataclasses.replace(cfg, timing=timing), episodes=args.eval_episodes
+            )
+            for name, timing in JUDGED_TIMINGS.items()
+        }
+        line += (
+            " ("
+            + ", ".join(f"{n.replace('_', ' ')} {r['success_rate']:.0%}" for n, r in result["timings"].items())
+            + ")"
+        )
     info = meta()
     if cur is not None:
         info.update(curriculum_stage=cur.stage, target_radius=cur.radius)
     write_json(out / "eval.json", {**info, **result})
-    return f"; evaluation: success {result['success_rate']:.0%} over {args.eval_episodes} episodes"
+    return line
 
 
 def _eval_config(agent, cur):

@@ -168,9 +168,79 @@ def check_heading_offset(args) -> None:
         raise UsageError(f"--heading-offset must be a number of degrees in [0, 180], got {off}")
 
 
+DEFAULT_TIMING = "link"
+"""quad-train's timing when no flag names one (`core.timing.PRESETS`)."""
+
+TIMING_FLAGS = {"action_delay": "action_delay_ms", "obs_delay": "obs_delay_ms", "jitter": "jitter_ms"}
+"""quad-train's per-range timing flags and the TimingConfig field each sets."""
+
+
+def _ms_range(flag: str, text: str) -> tuple[float, float]:
+    parts = text.split(":")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 2) or not all(math.isfinite(v) and v >= 0 for v in values) or values[0] > values[-1]:
+        raise UsageError(f"{flag} {text!r}: expected milliseconds ≥ 0, one value or LOW:HIGH (e.g. 20 or 0:30)")
+    return values[0], values[-1]
+
+
+def chosen_timing(args):
+    """The `core.timing.TimingConfig` of --timing, --action-delay, --obs-delay and --jitter (None: no
+    flag given; a fresh run then takes DEFAULT_TIMING, a resumed one keeps its own)."""
+    from quadpilot.core.timing import PRESETS
+
+    name = getattr(args, "timing", None)
+    ranges = {f: getattr(args, a, None) for a, f in TIMING_FLAGS.items()}
+    if name is None and all(v is None for v in ranges.values()):
+        return None
+    if name is not None and name not in PRESETS:
+        raise UsageError(f"--timing {name!r}: expected one of {', '.join(PRESETS)}")
+    base = PRESETS[name or DEFAULT_TIMING]
+    given = {
+        f: _ms_range("--" + a.replace("_", "-"), ranges[f]) for a, f in TIMING_FLAGS.items() if ranges[f] is not None
+    }
+    if not given:
+        return base
+    try:
+        return dataclasses.replace(base, name="custom", **given)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
+def chosen_reward(args):
+    """The task's reward with --reward NAME=VALUE's fields set (None: no --reward given)."""
+    items = getattr(args, "reward", None)
+    if not items:
+        return None
+    from quadpilot.core.reward import RewardConfig
+
+    from ..envs import make_config
+
+    known = {f.name for f in dataclasses.fields(RewardConfig)}
+    values = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or name not in known:
+            raise UsageError(f"--reward {item!r}: expected NAME=VALUE with NAME one of {', '.join(sorted(known))}")
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        positive = name.endswith("_sigma") or name.startswith(("max_", "tilt_soft"))  # widths and limits
+        if not math.isfinite(value) or value < 0 or (positive and value == 0):
+            what = "a finite number > 0" if positive else "a finite number ≥ 0"
+            raise UsageError(f"--reward {item!r}: expected {what} after '='")
+        values[name] = value
+    return dataclasses.replace(make_config(args.task).reward, **values)
+
+
 def env_kwargs(args) -> dict:
-    """`envs.make_config` keywords for --vehicle, --randomize, --sensor-noise, --motor-tau,
-    --init-rotor, --heading-offset and --obs-version."""
+    """`envs.make_config` keywords of a fresh run for --vehicle, --randomize, --sensor-noise,
+    --motor-tau, --timing (and its ranges), --reward, --init-rotor, --heading-offset and --obs-version."""
+    from quadpilot.core.timing import get_timing
+
     kw: dict = {"vehicle": args.vehicle} if args.vehicle else {}
     if getattr(args, "randomize", None):
         kw["randomization"] = args.randomize  # a preset name; make_config scales it to the vehicle
@@ -179,6 +249,10 @@ def env_kwargs(args) -> dict:
     if args.motor_tau is not None:
         check_motor_tau(args)
         kw["vehicle"] = dataclasses.replace(chosen_vehicle(args), motor_tau=args.motor_tau)
+    kw["timing"] = chosen_timing(args) or get_timing(DEFAULT_TIMING)  # a fresh run: DEFAULT_TIMING unless told
+    reward = chosen_reward(args)
+    if reward is not None:
+        kw["reward"] = reward
     if getattr(args, "init_rotor", None):
         kw["init_rotor"] = args.init_rotor
     if getattr(args, "obs_version", None):
@@ -222,6 +296,18 @@ def clashes(args, explicit: dict, stored_cfg, extra: dict, env_config: dict) -> 
         name = (env_config.get("sensor_noise") or {}).get("name")
         if name != want:
             out.append(f"--sensor-noise {want} (checkpoint: {name or 'off'})")
+    reward = chosen_reward(args)
+    if reward is not None:
+        have = env_config.get("reward", {})
+        moved = [f"{k}={v:g}" for k, v in dataclasses.asdict(reward).items() if have.get(k) != v]
+        if moved:
+            out.append(f"--reward {' '.join(moved)} (checkpoint: another reward)")
+    timing = chosen_timing(args)
+    if timing is not None:
+        have = env_config.get("timing") or {}
+        ranges = {k: tuple(have.get(k, (0.0, 0.0))) for k in TIMING_FLAGS.values()}
+        if any(getattr(timing, k) != v for k, v in ranges.items()):
+            out.append(f"--timing {timing.name} (checkpoint: {have.get('name', 'none')})")
     if args.motor_tau is not None and args.motor_tau != stored.get("motor_tau"):
         out.append(f"--motor-tau {args.motor_tau} (checkpoint: {stored.get('motor_tau')})")
     if getattr(args, "init_rotor", None) and args.init_rotor != env_config.get("init_rotor", "hover"):

@@ -170,13 +170,18 @@ class Trainer:
     # --- state between iterations ------------------------------------------------------------
     def extra_state(self) -> dict:
         """Trainer state beyond the networks', as arrays and plain data: the sensor-noise
-        processes (algorithms add what they carry between iterations)."""
-        noise = self.env.batch.noise
-        return {"noise": noise.state_dict()} if noise is not None else {}
+        processes and the delay line (algorithms add what they carry between iterations)."""
+        batch = self.env.batch
+        out = {"noise": batch.noise.state_dict()} if batch.noise is not None else {}
+        if batch.delay is not None:  # the commands and states on their way (core.timing)
+            out["timing"] = batch.delay.state_dict()
+        return out
 
     def load_extra_state(self, d: dict | None) -> None:
         """Put back what `extra_state` saved (a checkpoint without it leaves things as they are)."""
         d = d or {}
+        if "timing" in d and self.env.batch.delay is not None:
+            self.env.batch.delay.load_state_dict(d["timing"])
         if "noise" in d:
             from quadpilot.core.sensor_noise import SensorNoiseState
 
