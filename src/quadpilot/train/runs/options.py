@@ -45,9 +45,12 @@ def upper_bounds() -> dict[str, int]:
 # --- the trainer's configuration -------------------------------------------------------------
 
 
-def parse_overrides(items: list[str] | None, cls: type, algo: str) -> dict[str, Any]:
-    """--set NAME=VALUE items as fields of the configuration dataclass `cls`, typed by the field
-    (int, float, bool, tuple of ints, str, or None for an optional field). Raises UsageError naming
+def parse_overrides(
+    items: list[str] | None, cls: type, algo: str, flag: str = "--set", what: str | None = None
+) -> dict[str, Any]:
+    """`flag` NAME=VALUE items (--set: the trainer's) as fields of the configuration dataclass `cls`,
+    typed by the field (int, float, bool, tuple of ints, str, or None for an optional field); `what`
+    names a field in the message (default: a hyper-parameter of `algo`). Raises UsageError naming
     the problem."""
     fields = {f.name: f for f in dataclasses.fields(cls)}
     out: dict[str, Any] = {}
@@ -56,8 +59,8 @@ def parse_overrides(items: list[str] | None, cls: type, algo: str) -> dict[str, 
         name = name.strip().replace("-", "_")
         if not sep or name not in fields:
             known = ", ".join(sorted(fields))
-            what = f"a {algo.upper()} hyper-parameter"
-            raise UsageError(f"--set {item!r}: expected NAME=VALUE with NAME {what} ({known})")
+            what = what or f"a {algo.upper()} hyper-parameter"
+            raise UsageError(f"{flag} {item!r}: expected NAME=VALUE with NAME {what} ({known})")
         kind = str(fields[name].type)
         text = text.strip()
         try:
@@ -76,7 +79,7 @@ def parse_overrides(items: list[str] | None, cls: type, algo: str) -> dict[str, 
             else:
                 value = text
         except ValueError:
-            raise UsageError(f"--set {item!r}: {text!r} is not a valid {kind}") from None
+            raise UsageError(f"{flag} {item!r}: {text!r} is not a valid {kind}") from None
         out[name] = value
     return out
 
@@ -218,21 +221,13 @@ def chosen_reward(args):
 
     from ..envs import make_config
 
-    known = {f.name for f in dataclasses.fields(RewardConfig)}
-    values = {}
-    for item in items:
-        name, sep, text = item.partition("=")
-        if not sep or name not in known:
-            raise UsageError(f"--reward {item!r}: expected NAME=VALUE with NAME one of {', '.join(sorted(known))}")
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
+    values = parse_overrides(items, RewardConfig, "", flag="--reward", what="a field of the reward")
+    item = {i.partition("=")[0].strip().replace("-", "_"): i for i in items}  # each field's last item, as given
+    for name, value in values.items():
         positive = name.endswith("_sigma") or name.startswith(("max_", "tilt_soft"))  # widths and limits
         if not math.isfinite(value) or value < 0 or (positive and value == 0):
             what = "a finite number > 0" if positive else "a finite number ≥ 0"
-            raise UsageError(f"--reward {item!r}: expected {what} after '='")
-        values[name] = value
+            raise UsageError(f"--reward {item[name]!r}: expected {what} after '='")
     return dataclasses.replace(make_config(args.task).reward, **values)
 
 
